@@ -1,0 +1,1 @@
+pub use twistopt_solver as solver;

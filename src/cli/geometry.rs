@@ -1,0 +1,135 @@
+//! `twistopt geometry`: closed-form geometry summary, mesh and exports for one design.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use serde_json::{json, Value};
+use twistopt_solver::mesh::ElementKind;
+
+use crate::export::{cavity_surface, outer_surface, write_inp, write_stl_binary, write_vtu};
+use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
+use crate::meshing::{build_mesh, MeshSpec};
+
+/// Element order of the mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Order {
+    /// 8-node trilinear hexahedra (Hex8 / C3D8)
+    Linear,
+    /// 27-node triquadratic hexahedra (Hex27; exported to INP as C3D20)
+    Quadratic,
+}
+
+#[derive(Debug, Args)]
+pub struct GeometryArgs {
+    /// Arc radius r of the horseshoe section in mm (Table I: 5√3 ≈ 8.660254 … 20).
+    #[arg(long = "r", value_name = "MM", allow_negative_numbers = true)]
+    pub r: f64,
+    /// Waist radius l of the bellows profile in mm (Table I: 10 … 20).
+    #[arg(long = "l", value_name = "MM", allow_negative_numbers = true)]
+    pub l: f64,
+    /// Pre-twist α of the top face in degrees (Table I: 60 … 360; counter-clockwise about +z).
+    #[arg(long = "alpha", value_name = "DEG", allow_negative_numbers = true)]
+    pub alpha: f64,
+    /// Mesh: a preset (coarse = 24x8x1, default = 48x16x2, fine = 96x32x3) or an explicit
+    /// <Na>x<Nz>x<Nt> (elements around, along, through; Na a multiple of 3, Nz of 4).
+    #[arg(long, value_name = "PRESET|NAxNZxNT", default_value = "default")]
+    pub mesh: String,
+    /// Element order.
+    #[arg(long, value_enum, default_value_t = Order::Quadratic)]
+    pub order: Order,
+    /// Mesh only the 120° sector (cyclic symmetry); the STLs are still built from the full mesh.
+    #[arg(long)]
+    pub sector: bool,
+    /// Uniform arc-length split around instead of the arc-aligned split (nodes on the six
+    /// curvature jumps).
+    #[arg(long)]
+    pub uniform_around: bool,
+    /// Accept the wider range the construction supports (r ≥ R√21/14 ≈ 6.547 mm, l down to the
+    /// offset-validity bound, any finite α) instead of the Table I box.
+    #[arg(long)]
+    pub extended_range: bool,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// Build geometry + mesh and write all outputs; returns the summary JSON.
+pub fn generate(args: &GeometryArgs) -> Result<Value> {
+    let design = Design::new(args.r, args.l, args.alpha);
+    let policy = if args.extended_range { RangePolicy::Extended } else { RangePolicy::TableI };
+    let geom = ActuatorGeometry::new(&design, policy)?;
+    let kind = match args.order {
+        Order::Linear => ElementKind::Hex8,
+        Order::Quadratic => ElementKind::Hex27,
+    };
+    let spec = MeshSpec::parse(&args.mesh)?
+        .with_kind(kind)
+        .with_sector(args.sector)
+        .with_arc_aligned(!args.uniform_around);
+    let t0 = std::time::Instant::now();
+    let am = build_mesh(&geom, &spec)?;
+    let mesh_seconds = t0.elapsed().as_secs_f64();
+    let full = if spec.sector { build_mesh(&geom, &spec.with_sector(false))? } else { am.clone() };
+    let outer = outer_surface(&full.mesh)?;
+    let cavity = cavity_surface(&full.mesh)?;
+
+    let dir: &Path = &args.out;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
+    write_vtu(&dir.join("mesh.vtu"), &am.mesh, &[], &[])?;
+    write_stl_binary(&dir.join("outer.stl"), &outer, "outer")?;
+    write_stl_binary(&dir.join("cavity.stl"), &cavity, "cavity")?;
+    let heading = format!(
+        "twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}",
+        args.r,
+        args.l,
+        args.alpha,
+        spec.size_string(),
+        spec.kind,
+        if spec.sector { " sector" } else { "" }
+    );
+    write_inp(&dir.join("mesh.inp"), &am.mesh, &heading)?;
+
+    let mut v = serde_json::to_value(geom.summary())?;
+    let m = v.as_object_mut().context("summary is an object")?;
+    m.insert("range_policy".into(), json!(format!("{:?}", policy)));
+    m.insert("mesh".into(), json!(spec.size_string()));
+    m.insert("element_kind".into(), json!(format!("{:?}", spec.kind)));
+    m.insert("sector".into(), json!(spec.sector));
+    m.insert("arc_aligned".into(), json!(spec.arc_aligned));
+    m.insert("nodes".into(), json!(am.mesh.n_nodes()));
+    m.insert("elements".into(), json!(am.mesh.n_elements()));
+    m.insert("cyclic_pairs".into(), json!(am.cyclic_pairs.len()));
+    m.insert("min_scaled_jacobian".into(), json!(am.quality.min_scaled_jacobian));
+    m.insert("worst_element".into(), json!(am.quality.worst_element));
+    m.insert("mesh_generation_seconds".into(), json!(mesh_seconds));
+    m.insert("meshed_outer_volume_mm3".into(), json!(outer.volume()));
+    m.insert("meshed_chamber_volume_mm3".into(), json!(cavity.volume()));
+    m.insert("outer_stl_triangles".into(), json!(outer.triangles.len()));
+    m.insert("cavity_stl_triangles".into(), json!(cavity.triangles.len()));
+    m.insert(
+        "files".into(),
+        json!(["summary.json", "mesh.vtu", "outer.stl", "cavity.stl", "mesh.inp"]),
+    );
+    std::fs::write(dir.join("summary.json"), serde_json::to_string_pretty(&v)? + "\n")
+        .with_context(|| format!("cannot write {}", dir.join("summary.json").display()))?;
+    Ok(v)
+}
+
+pub fn run(args: &GeometryArgs) -> Result<()> {
+    let v = generate(args)?;
+    println!(
+        "r = {} mm, l = {} mm, alpha = {} deg: T = {:.4} mm, chamber volume = {:.3} mm3, wall volume = {:.3} mm3",
+        args.r, args.l, args.alpha, v["T_mm"], v["chamber_volume_mm3"], v["wall_volume_mm3"]
+    );
+    println!(
+        "mesh {} {}: {} nodes, {} elements, min scaled Jacobian {:.4}; wrote {}",
+        v["mesh"].as_str().unwrap_or(""),
+        v["element_kind"].as_str().unwrap_or(""),
+        v["nodes"],
+        v["elements"],
+        v["min_scaled_jacobian"].as_f64().unwrap_or(f64::NAN),
+        args.out.display()
+    );
+    Ok(())
+}

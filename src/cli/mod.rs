@@ -1,0 +1,33 @@
+//! Command-line interface. Each subcommand lives in its own module with an `Args` struct
+//! (clap derive) and a `run` function; add new subcommands (evaluate, gradient, optimise,
+//! sweep, export, crosscheck) by adding a variant to [`Command`] and a module here.
+
+use clap::{Parser, Subcommand};
+
+pub mod geometry;
+
+/// twistopt — design optimisation of soft twisting pneumatic actuators.
+///
+/// The actuator is a tube (outer radius 20 mm, height 40 mm, wall 3 mm) whose cross-section is a
+/// triangular "horseshoe" of six arcs of radius r, whose lateral edge is a three-arc bellows with
+/// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
+#[derive(Debug, Parser)]
+#[command(name = "twistopt", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Build the geometry and mesh of one design; write summary.json, mesh.vtu, outer.stl,
+    /// cavity.stl and mesh.inp to an output directory.
+    Geometry(geometry::GeometryArgs),
+}
+
+/// Run a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Geometry(args) => geometry::run(&args),
+    }
+}

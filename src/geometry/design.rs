@@ -1,0 +1,292 @@
+//! Named design parameters, their admissible ranges and validation.
+//!
+//! The optimiser sees a design as a list of *named* parameters (`r_mm`, `l_mm`, `alpha_deg`)
+//! described by a [`DesignSpace`]; nothing downstream depends on there being exactly three.
+
+use std::collections::BTreeMap;
+
+use super::{section_constants_f64, R_TUBE, T_WALL};
+
+/// Name of the lobe/notch arc radius parameter (construction frame), mm.
+pub const P_R: &str = "r_mm";
+/// Name of the waist radius (minimal lateral radius) parameter, mm.
+pub const P_L: &str = "l_mm";
+/// Name of the end-to-end pre-twist parameter, degrees.
+pub const P_ALPHA: &str = "alpha_deg";
+
+/// Which parameter box a design is validated against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub enum RangePolicy {
+    /// The letter's Table I box: r ∈ [5√3, 20] mm, l ∈ [10, 20] mm, α ∈ [60°, 360°].
+    #[default]
+    TableI,
+    /// The range the construction supports (GEOMETRY.md §2.2, §3, §4.3):
+    /// r ∈ [R√21/14, 20] mm, l ∈ [l_min(r), 20] mm with the offset-validity bound
+    /// [`l_min_extended`], α any finite value (negative allowed).
+    Extended,
+}
+
+/// One named design parameter and its Table-I range.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ParamSpec {
+    pub name: String,
+    pub unit: String,
+    pub description: String,
+    /// Table-I lower bound.
+    pub min: f64,
+    /// Table-I upper bound.
+    pub max: f64,
+}
+
+/// The list of design parameters the geometry understands.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DesignSpace {
+    pub params: Vec<ParamSpec>,
+}
+
+impl Default for DesignSpace {
+    fn default() -> Self {
+        Self::actuator()
+    }
+}
+
+impl DesignSpace {
+    /// The twisting actuator's design space (Table I of the letter).
+    pub fn actuator() -> Self {
+        DesignSpace {
+            params: vec![
+                ParamSpec {
+                    name: P_R.into(),
+                    unit: "mm".into(),
+                    description: "arc radius of the horseshoe section (construction frame)".into(),
+                    min: 5.0 * 3f64.sqrt(),
+                    max: 20.0,
+                },
+                ParamSpec {
+                    name: P_L.into(),
+                    unit: "mm".into(),
+                    description: "minimal lateral radius of the bellows profile (waist)".into(),
+                    min: 10.0,
+                    max: 20.0,
+                },
+                ParamSpec {
+                    name: P_ALPHA.into(),
+                    unit: "deg".into(),
+                    description: "pre-twist of the top face relative to the bottom face".into(),
+                    min: 60.0,
+                    max: 360.0,
+                },
+            ],
+        }
+    }
+
+    pub fn names(&self) -> Vec<&str> {
+        self.params.iter().map(|p| p.name.as_str()).collect()
+    }
+
+    pub fn get(&self, name: &str) -> Option<&ParamSpec> {
+        self.params.iter().find(|p| p.name == name)
+    }
+}
+
+/// Reasons a design or geometry request is rejected. Every message is one line and names the
+/// offending field and the allowed range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GeometryError {
+    #[error("{name} = {value} is not a finite number (allowed range {range})")]
+    NotFinite { name: String, value: f64, range: String },
+    #[error("{name} = {value} is outside the allowed range {range}{hint}")]
+    OutOfRange { name: String, value: f64, range: String, hint: String },
+    #[error("unknown design parameter '{name}' (known parameters: {known})")]
+    UnknownParameter { name: String, known: String },
+    #[error("design parameter '{name}' is missing (required parameters: {known})")]
+    MissingParameter { name: String, known: String },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Numerical range as text, e.g. "[8.660254, 20] mm".
+fn range_text(lo: f64, hi: f64, unit: &str) -> String {
+    let f = |x: f64| {
+        if x.is_infinite() {
+            if x > 0.0 { "+inf".to_string() } else { "-inf".to_string() }
+        } else {
+            let s = format!("{x:.6}");
+            let s = s.trim_end_matches('0').trim_end_matches('.').to_string();
+            s
+        }
+    };
+    format!("[{}, {}] {unit}", f(lo), f(hi))
+}
+
+/// Lower bound of r for the extended range, R√21/14 ≈ 6.547 mm (u reaches its limit π/2 − ψ0).
+pub fn r_min_extended() -> f64 {
+    R_TUBE * 21f64.sqrt() / 14.0
+}
+
+/// Safe lower bound on l for the extended range at a given r (GEOMETRY.md §4.3).
+///
+/// At the waist the section is the construction section scaled by l/T and the wall normal is
+/// horizontal, so the inner (offset) section is well defined when, with a safety margin,
+/// * the lobe arc radius r·l/T exceeds the wall t by 0.5 mm (inner lobe radius ≥ 0.5 mm),
+/// * the lobe neck (√3·e − 2r)·l/T exceeds 2t + 1 mm (the two offset notch walls keep ≥ 1 mm apart),
+/// * the notch bottom B·l/T exceeds t + 1 mm (the inner wall stays ≥ 1 mm off the axis),
+/// and never below 0 (the profile exists for l ∈ [0, 20]). [`crate::geometry::ActuatorGeometry::new`]
+/// additionally checks the principal curvatures of the whole outer surface against 1/(t + 0.5).
+/// For r = 5√3 this gives 7.54 mm; for r close to R√21/14 the bound exceeds 20 (no valid l).
+pub fn l_min_extended(r: f64) -> f64 {
+    let s = section_constants_f64(r);
+    let t = T_WALL;
+    let c1 = (t + 0.5) * s.t_max / r;
+    let neck = 3f64.sqrt() * s.e - 2.0 * r;
+    let c2 = if neck > 0.0 { (2.0 * t + 1.0) * s.t_max / neck } else { f64::INFINITY };
+    let c3 = if s.b_min > 0.0 { (t + 1.0) * s.t_max / s.b_min } else { f64::INFINITY };
+    c1.max(c2).max(c3).max(0.0)
+}
+
+/// A design: a value for every parameter of a [`DesignSpace`], by name.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Design {
+    pub values: BTreeMap<String, f64>,
+}
+
+impl Design {
+    /// Build a design from (name, value) pairs. Names are checked against the actuator design
+    /// space (unknown or missing names are errors); ranges are checked by [`Design::validate`].
+    pub fn from_pairs(pairs: &[(&str, f64)]) -> Result<Self, GeometryError> {
+        let space = DesignSpace::actuator();
+        let known = space.names().join(", ");
+        let mut values = BTreeMap::new();
+        for (k, v) in pairs {
+            if space.get(k).is_none() {
+                return Err(GeometryError::UnknownParameter { name: k.to_string(), known });
+            }
+            values.insert(k.to_string(), *v);
+        }
+        for p in &space.params {
+            if !values.contains_key(&p.name) {
+                return Err(GeometryError::MissingParameter { name: p.name.clone(), known });
+            }
+        }
+        Ok(Design { values })
+    }
+
+    /// Convenience constructor for the actuator's three parameters.
+    pub fn new(r_mm: f64, l_mm: f64, alpha_deg: f64) -> Self {
+        let mut values = BTreeMap::new();
+        values.insert(P_R.to_string(), r_mm);
+        values.insert(P_L.to_string(), l_mm);
+        values.insert(P_ALPHA.to_string(), alpha_deg);
+        Design { values }
+    }
+
+    /// The letter's example design r = 5√3, l = 10, α = 60°.
+    pub fn paper_example() -> Self {
+        Design::new(5.0 * 3f64.sqrt(), 10.0, 60.0)
+    }
+
+    pub fn get(&self, name: &str) -> Result<f64, GeometryError> {
+        self.values.get(name).copied().ok_or_else(|| GeometryError::MissingParameter {
+            name: name.to_string(),
+            known: DesignSpace::actuator().names().join(", "),
+        })
+    }
+
+    pub fn r_mm(&self) -> f64 {
+        self.values.get(P_R).copied().unwrap_or(f64::NAN)
+    }
+    pub fn l_mm(&self) -> f64 {
+        self.values.get(P_L).copied().unwrap_or(f64::NAN)
+    }
+    pub fn alpha_deg(&self) -> f64 {
+        self.values.get(P_ALPHA).copied().unwrap_or(f64::NAN)
+    }
+
+    /// The same design with one parameter changed (name must exist).
+    pub fn with(&self, name: &str, value: f64) -> Result<Self, GeometryError> {
+        if !self.values.contains_key(name) {
+            return Err(GeometryError::UnknownParameter {
+                name: name.to_string(),
+                known: self.values.keys().cloned().collect::<Vec<_>>().join(", "),
+            });
+        }
+        let mut d = self.clone();
+        d.values.insert(name.to_string(), value);
+        Ok(d)
+    }
+
+    /// Check names, finiteness and ranges. Returns (r, l, α in degrees).
+    pub fn validate(&self, policy: RangePolicy) -> Result<(f64, f64, f64), GeometryError> {
+        let space = DesignSpace::actuator();
+        let known = space.names().join(", ");
+        for k in self.values.keys() {
+            if space.get(k).is_none() {
+                return Err(GeometryError::UnknownParameter { name: k.clone(), known });
+            }
+        }
+        let r = self.get(P_R)?;
+        let l = self.get(P_L)?;
+        let a = self.get(P_ALPHA)?;
+        let hint_ext = " (Table I box; pass --extended-range / RangePolicy::Extended for the wider range the construction supports)";
+        let ps = |n: &str| space.get(n).expect("known parameter").clone();
+        match policy {
+            RangePolicy::TableI => {
+                for (name, v) in [(P_R, r), (P_L, l), (P_ALPHA, a)] {
+                    let p = ps(name);
+                    let range = range_text(p.min, p.max, &p.unit);
+                    if !v.is_finite() {
+                        return Err(GeometryError::NotFinite { name: name.into(), value: v, range });
+                    }
+                    // tolerate round-off at the bounds (e.g. 5*sqrt(3) typed with 16 digits)
+                    let tol = 1e-9 * p.max.abs().max(1.0);
+                    if v < p.min - tol || v > p.max + tol {
+                        return Err(GeometryError::OutOfRange {
+                            name: name.into(),
+                            value: v,
+                            range,
+                            hint: hint_ext.into(),
+                        });
+                    }
+                }
+            }
+            RangePolicy::Extended => {
+                let rmin = r_min_extended();
+                let rr = range_text(rmin, R_TUBE, "mm");
+                if !r.is_finite() {
+                    return Err(GeometryError::NotFinite { name: P_R.into(), value: r, range: rr });
+                }
+                if r < rmin - 1e-12 || r > R_TUBE + 1e-9 {
+                    return Err(GeometryError::OutOfRange {
+                        name: P_R.into(),
+                        value: r,
+                        range: rr,
+                        hint: " (extended range)".into(),
+                    });
+                }
+                let lmin = l_min_extended(r.max(rmin));
+                let lr = range_text(lmin, R_TUBE, "mm");
+                if !l.is_finite() {
+                    return Err(GeometryError::NotFinite { name: P_L.into(), value: l, range: lr });
+                }
+                if l < lmin - 1e-12 || l > R_TUBE + 1e-9 {
+                    return Err(GeometryError::OutOfRange {
+                        name: P_L.into(),
+                        value: l,
+                        range: lr,
+                        hint: format!(
+                            " (extended range at r_mm = {r}: the inward offset of t = {T_WALL} mm must not self-intersect)"
+                        ),
+                    });
+                }
+                if !a.is_finite() {
+                    return Err(GeometryError::NotFinite {
+                        name: P_ALPHA.into(),
+                        value: a,
+                        range: "(-inf, +inf) deg".into(),
+                    });
+                }
+            }
+        }
+        Ok((r.min(R_TUBE), l.min(R_TUBE), a))
+    }
+}

@@ -1,0 +1,569 @@
+//! Structured hexahedral meshes of the actuator wall (GEOMETRY.md §5).
+//!
+//! Lattice: N_around × N_along × N_through elements, with (around, along, through) = (ξ, η, ζ)
+//! right-handed (around = counter-clockwise, along = +z, through = inner → outer), so every
+//! element Jacobian is positive.
+//!
+//! * **Around**: Na a multiple of 3. Arc-aligned (default): per 120° sector nL =
+//!   round((Na/3)·θL/(θL+θN)) element edges (clipped to [1, Na/3 − 1]; all Na/3 when r = R) go
+//!   uniformly (in arc length) on the lobe and the rest on the notch, so nodes fall exactly on the
+//!   six curvature jumps; node i = 0 is the start of lobe 0 (junction N2 → L0). Uniform: ŝᵢ = i/Na,
+//!   node 0 at the tip of lobe 0. Note: in arc-aligned mode the node distribution depends on nL,
+//!   which is piecewise constant in r, so node coordinates are smooth in r only between the
+//!   values of r where nL changes (the shape derivatives are exact within such an interval); the
+//!   uniform split is smooth everywhere.
+//! * **Along**: Nz a multiple of 4, rings at uniform arc length of the profile (ζ = 1/4, 3/4 are
+//!   the profile junctions).
+//! * **Through**: k = 0 inner … k = Nt outer (η = 1 − k/Nt).
+//! * Quadratic elements use the lattice 2Na × (2Nz + 1) × (2Nt + 1) with mid-nodes at the
+//!   parameter midpoints (ŝ, arc length ζ, η), so every node lies on the exact geometry.
+//!   Hex20 is the Hex27 mesh reduced by [`Mesh::to_kind`].
+//!
+//! Node numbering (Hex8/Hex27): node = (k·NZ + j)·NA + i over lattice indices (i around, j along,
+//! k through).
+
+use std::collections::BTreeMap;
+
+use num_dual::Dual64;
+use twistopt_solver::mesh::{ElementKind, Face, Mesh, Side, HEX27_NATURAL};
+
+use crate::geometry::{
+    scalar::cst, ActuatorGeometry, Actuator, DesignSpace, GeometryError, Scalar,
+};
+
+/// Mesh presets: (name, N_around, N_along, N_through, element kind). One table, tuned later by the
+/// FE work. Sizes are for quadratic (Hex27) elements in the thin wall.
+pub const MESH_PRESETS: &[(&str, usize, usize, usize, ElementKind)] = &[
+    ("coarse", 24, 8, 1, ElementKind::Hex27),
+    ("default", 48, 16, 2, ElementKind::Hex27),
+    ("fine", 96, 32, 3, ElementKind::Hex27),
+];
+
+/// Errors of mesh specification and generation.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeshError {
+    #[error("mesh: {0}")]
+    Spec(String),
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    #[error("mesh: element {element} is inverted (Jacobian determinant {det:.3e} at natural point {at:?}); the geometry/mesh combination is not usable")]
+    Inverted { element: usize, det: f64, at: [f64; 3] },
+}
+
+/// What mesh to build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct MeshSpec {
+    /// elements around the full circumference (multiple of 3)
+    pub n_around: usize,
+    /// elements along the height (multiple of 4)
+    pub n_along: usize,
+    /// elements through the wall (≥ 1)
+    pub n_through: usize,
+    pub kind: ElementKind,
+    /// only the 120° sector i ∈ [0, Na/3) with two cut faces and cyclic node pairs
+    pub sector: bool,
+    /// arc-aligned split around (nodes on the curvature jumps); default true
+    pub arc_aligned: bool,
+}
+
+impl Default for MeshSpec {
+    fn default() -> Self {
+        MeshSpec::preset("default").expect("default preset exists")
+    }
+}
+
+impl MeshSpec {
+    pub fn new(n_around: usize, n_along: usize, n_through: usize, kind: ElementKind) -> Result<Self, MeshError> {
+        let s = MeshSpec { n_around, n_along, n_through, kind, sector: false, arc_aligned: true };
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// A named preset (`coarse`, `default`, `fine`).
+    pub fn preset(name: &str) -> Result<Self, MeshError> {
+        let names: Vec<&str> = MESH_PRESETS.iter().map(|p| p.0).collect();
+        MESH_PRESETS
+            .iter()
+            .find(|p| p.0 == name)
+            .map(|&(_, a, z, t, kind)| MeshSpec {
+                n_around: a,
+                n_along: z,
+                n_through: t,
+                kind,
+                sector: false,
+                arc_aligned: true,
+            })
+            .ok_or_else(|| {
+                MeshError::Spec(format!(
+                    "unknown mesh preset '{name}' (expected one of {} or <Na>x<Nz>x<Nt>, e.g. 48x16x2)",
+                    names.join(", ")
+                ))
+            })
+    }
+
+    /// A preset name or an explicit `<Na>x<Nz>x<Nt>` string (quadratic Hex27 by default; change
+    /// `kind` afterwards).
+    pub fn parse(s: &str) -> Result<Self, MeshError> {
+        let t = s.trim();
+        if t.contains('x') && t.chars().next().is_some_and(|c| c.is_ascii_digit()) {
+            let parts: Vec<&str> = t.split('x').collect();
+            let bad = || {
+                MeshError::Spec(format!(
+                    "cannot parse mesh size '{s}' (expected <Na>x<Nz>x<Nt> with positive integers, e.g. 48x16x2)"
+                ))
+            };
+            if parts.len() != 3 {
+                return Err(bad());
+            }
+            let n: Vec<usize> = parts.iter().map(|p| p.parse::<usize>().map_err(|_| bad())).collect::<Result<_, _>>()?;
+            let spec = MeshSpec {
+                n_around: n[0],
+                n_along: n[1],
+                n_through: n[2],
+                kind: ElementKind::Hex27,
+                sector: false,
+                arc_aligned: true,
+            };
+            spec.validate()?;
+            Ok(spec)
+        } else {
+            Self::preset(t)
+        }
+    }
+
+    pub fn with_kind(mut self, kind: ElementKind) -> Self {
+        self.kind = kind;
+        self
+    }
+    pub fn with_sector(mut self, sector: bool) -> Self {
+        self.sector = sector;
+        self
+    }
+    pub fn with_arc_aligned(mut self, arc_aligned: bool) -> Self {
+        self.arc_aligned = arc_aligned;
+        self
+    }
+
+    /// Text form `<Na>x<Nz>x<Nt>`.
+    pub fn size_string(&self) -> String {
+        format!("{}x{}x{}", self.n_around, self.n_along, self.n_through)
+    }
+
+    pub fn validate(&self) -> Result<(), MeshError> {
+        if self.n_around < 6 || self.n_around % 3 != 0 {
+            return Err(MeshError::Spec(format!(
+                "n_around = {} must be a multiple of 3 and at least 6",
+                self.n_around
+            )));
+        }
+        if self.n_along < 4 || self.n_along % 4 != 0 {
+            return Err(MeshError::Spec(format!(
+                "n_along = {} must be a positive multiple of 4 (element faces on the profile junctions)",
+                self.n_along
+            )));
+        }
+        if self.n_through < 1 {
+            return Err(MeshError::Spec("n_through must be at least 1".into()));
+        }
+        if self.n_around * self.n_along * self.n_through > 5_000_000 {
+            return Err(MeshError::Spec(format!(
+                "{} elements requested; the limit is 5 000 000",
+                self.n_around * self.n_along * self.n_through
+            )));
+        }
+        Ok(())
+    }
+
+    fn order(&self) -> usize {
+        self.kind.order()
+    }
+    fn lattice_dims(&self) -> [usize; 3] {
+        let q = self.order();
+        let na = if self.sector { q * self.n_around / 3 + 1 } else { q * self.n_around };
+        [na, q * self.n_along + 1, q * self.n_through + 1]
+    }
+    fn elements_around(&self) -> usize {
+        if self.sector { self.n_around / 3 } else { self.n_around }
+    }
+}
+
+/// Mesh quality summary.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct MeshQuality {
+    /// min over elements and evaluation points (corners + Gauss points) of
+    /// det J / (|∂x/∂ξ| |∂x/∂η| |∂x/∂ζ|)
+    pub min_scaled_jacobian: f64,
+    /// element where the minimum occurs
+    pub worst_element: usize,
+    /// smallest Jacobian determinant (mm³ per unit natural volume)
+    pub min_det_jacobian: f64,
+    /// number of (element, point) evaluations
+    pub points_checked: usize,
+}
+
+/// A generated actuator mesh.
+#[derive(Clone, Debug)]
+pub struct ActuatorMesh {
+    pub mesh: Mesh,
+    /// sector meshes: (node on cut_start, node on cut_end) with end = Rot(+120°)·start;
+    /// empty for a full mesh
+    pub cyclic_pairs: Vec<(usize, usize)>,
+    pub quality: MeshQuality,
+    pub spec: MeshSpec,
+}
+
+/// Around-parameters of the lattice (ŝ for each lattice index i).
+fn around_shat<D: Scalar>(act: &Actuator<D>, spec: &MeshSpec) -> Vec<D> {
+    let q = spec.order();
+    let na = spec.n_around;
+    let per = na / 3;
+    let nlat = spec.lattice_dims()[0];
+    if !spec.arc_aligned {
+        return (0..nlat).map(|m| cst::<D>(m as f64 / (q * na) as f64)).collect();
+    }
+    let sec = &act.section;
+    let fl = sec.lobe_fraction();
+    let (nl, nn) = if sec.theta_n.re() <= 0.0 {
+        (per, 0)
+    } else {
+        let nl = ((per as f64) * fl.re()).round() as usize;
+        let nl = nl.clamp(1, per - 1);
+        (nl, per - nl)
+    };
+    // element-boundary position in sector units, measured from the start of lobe 0
+    let qpos = |i: usize| -> D {
+        let k = i / per;
+        let ii = i % per;
+        if ii < nl {
+            fl * (ii as f64 / nl as f64) + k as f64
+        } else {
+            fl + (cst::<D>(1.0) - fl) * ((ii - nl) as f64 / nn as f64) + k as f64
+        }
+    };
+    (0..nlat)
+        .map(|m| {
+            let i = m / q;
+            let sub = m % q;
+            let a = qpos(i);
+            let pos = if sub == 0 {
+                a
+            } else {
+                let b = if i + 1 == na { cst::<D>(3.0) } else { qpos(i + 1) };
+                (a + b) * 0.5
+            };
+            (pos - fl * 0.5) * (1.0 / 3.0)
+        })
+        .collect()
+}
+
+/// Lattice node coordinates (Hex8 / Hex27 lattice) for any scalar type.
+fn lattice_coords<D: Scalar>(act: &Actuator<D>, spec: &MeshSpec) -> Vec<[D; 3]> {
+    let [na, nz, nk] = spec.lattice_dims();
+    let shat = around_shat(act, spec);
+    let zs: Vec<D> = (0..nz).map(|j| act.profile.at_arclength(j as f64 / (nz - 1) as f64).0).collect();
+    let mut out = Vec::with_capacity(na * nz * nk);
+    for k in 0..nk {
+        let eta = cst::<D>(1.0 - k as f64 / (nk - 1) as f64);
+        for z in zs.iter() {
+            for s in shat.iter() {
+                out.push(act.point(*s, *z, eta));
+            }
+        }
+    }
+    out
+}
+
+/// Hex8 or Hex27 topology on the lattice, plus sets and cyclic pairs.
+fn lattice_topology(spec: &MeshSpec) -> (ElementKind, Vec<usize>, BTreeMap<String, Vec<usize>>, BTreeMap<String, Vec<Face>>, Vec<(usize, usize)>) {
+    let lat_kind = if spec.kind == ElementKind::Hex8 { ElementKind::Hex8 } else { ElementKind::Hex27 };
+    let q = spec.order();
+    let [na, nz, nk] = spec.lattice_dims();
+    let idx = |i: usize, j: usize, k: usize| (k * nz + j) * na + i;
+    let ne_a = spec.elements_around();
+    let (ne_z, ne_t) = (spec.n_along, spec.n_through);
+    let npe = lat_kind.nodes_per_element();
+    let mut conn = Vec::with_capacity(ne_a * ne_z * ne_t * npe);
+    let mut faces: BTreeMap<String, Vec<Face>> = BTreeMap::new();
+    let mut e = 0usize;
+    for ek in 0..ne_t {
+        for ej in 0..ne_z {
+            for ei in 0..ne_a {
+                for nat in &HEX27_NATURAL[..npe] {
+                    let off = |a: i8| (q * (a + 1) as usize) / 2;
+                    let mut i = q * ei + off(nat[0]);
+                    if !spec.sector {
+                        i %= na;
+                    }
+                    conn.push(idx(i, q * ej + off(nat[1]), q * ek + off(nat[2])));
+                }
+                let mut add = |name: &str, side: Side| {
+                    faces.entry(name.to_string()).or_default().push(Face { element: e, side });
+                };
+                if ek == 0 {
+                    add("cavity", Side::ZetaMinus);
+                }
+                if ek == ne_t - 1 {
+                    add("outer", Side::ZetaPlus);
+                }
+                if ej == 0 {
+                    add("bottom", Side::EtaMinus);
+                }
+                if ej == ne_z - 1 {
+                    add("top", Side::EtaPlus);
+                }
+                if spec.sector && ei == 0 {
+                    add("cut_start", Side::XiMinus);
+                }
+                if spec.sector && ei == ne_a - 1 {
+                    add("cut_end", Side::XiPlus);
+                }
+                e += 1;
+            }
+        }
+    }
+    let mut nsets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    let mut pairs = Vec::new();
+    for k in 0..nk {
+        for j in 0..nz {
+            for i in 0..na {
+                let n = idx(i, j, k);
+                if j == 0 {
+                    nsets.entry("bottom".into()).or_default().push(n);
+                }
+                if j == nz - 1 {
+                    nsets.entry("top".into()).or_default().push(n);
+                }
+                if k == 0 {
+                    nsets.entry("cavity".into()).or_default().push(n);
+                }
+                if k == nk - 1 {
+                    nsets.entry("outer".into()).or_default().push(n);
+                }
+                if spec.sector && i == 0 {
+                    nsets.entry("cut_start".into()).or_default().push(n);
+                    pairs.push((n, idx(na - 1, j, k)));
+                }
+                if spec.sector && i == na - 1 {
+                    nsets.entry("cut_end".into()).or_default().push(n);
+                }
+            }
+        }
+    }
+    for v in nsets.values_mut() {
+        v.sort_unstable();
+    }
+    (lat_kind, conn, nsets, faces, pairs)
+}
+
+/// Node renumbering of [`Mesh::to_kind`] (first appearance in the reduced connectivity).
+fn reduction_map(mesh: &Mesh, kind: ElementKind) -> Vec<usize> {
+    let npe_old = mesh.kind.nodes_per_element();
+    let npe = kind.nodes_per_element();
+    let mut map = vec![usize::MAX; mesh.nodes.len()];
+    let mut next = 0;
+    for e in 0..mesh.n_elements() {
+        for &n in &mesh.connectivity[e * npe_old..e * npe_old + npe] {
+            if map[n] == usize::MAX {
+                map[n] = next;
+                next += 1;
+            }
+        }
+    }
+    map
+}
+
+/// Build the mesh for a validated geometry.
+pub fn build_mesh(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<ActuatorMesh, MeshError> {
+    spec.validate()?;
+    let nodes = lattice_coords(&geom.act, spec);
+    let (lat_kind, connectivity, node_sets, face_sets, pairs) = lattice_topology(spec);
+    let mut mesh = Mesh { nodes, kind: lat_kind, connectivity, node_sets, face_sets };
+    let mut cyclic_pairs = pairs;
+    if spec.kind == ElementKind::Hex20 {
+        let map = reduction_map(&mesh, ElementKind::Hex20);
+        mesh = mesh.to_kind(ElementKind::Hex20);
+        cyclic_pairs = cyclic_pairs
+            .into_iter()
+            .filter(|(a, b)| map[*a] != usize::MAX && map[*b] != usize::MAX)
+            .map(|(a, b)| (map[a], map[b]))
+            .collect();
+    }
+    let quality = mesh_quality(&mesh)?;
+    Ok(ActuatorMesh { mesh, cyclic_pairs, quality, spec: *spec })
+}
+
+/// dX/dp for every node and every named design parameter (same numbering as [`build_mesh`]),
+/// from forward-mode dual numbers. α derivatives are per degree (the design unit).
+pub fn mesh_shape_derivatives(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<Vec<(String, Vec<[f64; 3]>)>, MeshError> {
+    spec.validate()?;
+    let mut out = Vec::new();
+    let map = if spec.kind == ElementKind::Hex20 {
+        let (lat_kind, connectivity, _, _, _) = lattice_topology(spec);
+        let n = spec.lattice_dims().iter().product();
+        let tmp = Mesh {
+            nodes: vec![[0.0; 3]; n],
+            kind: lat_kind,
+            connectivity,
+            node_sets: BTreeMap::new(),
+            face_sets: BTreeMap::new(),
+        };
+        Some(reduction_map(&tmp, ElementKind::Hex20))
+    } else {
+        None
+    };
+    for name in DesignSpace::actuator().names() {
+        let act: Actuator<Dual64> = geom.dual_actuator(name)?;
+        let lat = lattice_coords(&act, spec);
+        let d: Vec<[f64; 3]> = lat.iter().map(|p| [p[0].eps, p[1].eps, p[2].eps]).collect();
+        let d = match &map {
+            None => d,
+            Some(map) => {
+                let n = map.iter().filter(|&&m| m != usize::MAX).count();
+                let mut r = vec![[0.0; 3]; n];
+                for (old, &new) in map.iter().enumerate() {
+                    if new != usize::MAX {
+                        r[new] = d[old];
+                    }
+                }
+                r
+            }
+        };
+        out.push((name.to_string(), d));
+    }
+    Ok(out)
+}
+
+/// Derivatives (∂N/∂ξ, ∂N/∂η, ∂N/∂ζ) of the element shape functions at a natural point.
+pub fn shape_gradients(kind: ElementKind, xi: [f64; 3]) -> Vec<[f64; 3]> {
+    let nat = kind.natural_coords();
+    match kind {
+        ElementKind::Hex8 => nat
+            .iter()
+            .map(|a| {
+                let f = |m: usize| 1.0 + xi[m] * a[m] as f64;
+                [
+                    0.125 * a[0] as f64 * f(1) * f(2),
+                    0.125 * a[1] as f64 * f(0) * f(2),
+                    0.125 * a[2] as f64 * f(0) * f(1),
+                ]
+            })
+            .collect(),
+        ElementKind::Hex27 => {
+            let l = |a: i8, x: f64| match a {
+                -1 => 0.5 * x * (x - 1.0),
+                0 => 1.0 - x * x,
+                _ => 0.5 * x * (x + 1.0),
+            };
+            let dl = |a: i8, x: f64| match a {
+                -1 => x - 0.5,
+                0 => -2.0 * x,
+                _ => x + 0.5,
+            };
+            nat.iter()
+                .map(|a| {
+                    [
+                        dl(a[0], xi[0]) * l(a[1], xi[1]) * l(a[2], xi[2]),
+                        l(a[0], xi[0]) * dl(a[1], xi[1]) * l(a[2], xi[2]),
+                        l(a[0], xi[0]) * l(a[1], xi[1]) * dl(a[2], xi[2]),
+                    ]
+                })
+                .collect()
+        }
+        ElementKind::Hex20 => nat
+            .iter()
+            .map(|a| {
+                let af = [a[0] as f64, a[1] as f64, a[2] as f64];
+                if a.iter().all(|&c| c != 0) {
+                    let f = |m: usize| 1.0 + xi[m] * af[m];
+                    let s = xi[0] * af[0] + xi[1] * af[1] + xi[2] * af[2];
+                    let mut g = [0.0; 3];
+                    for m in 0..3 {
+                        let (o1, o2) = ((m + 1) % 3, (m + 2) % 3);
+                        g[m] = 0.125 * af[m] * f(o1) * f(o2) * (s - 2.0 + f(m));
+                    }
+                    g
+                } else {
+                    let m0 = a.iter().position(|&c| c == 0).expect("edge node");
+                    let (o1, o2) = ((m0 + 1) % 3, (m0 + 2) % 3);
+                    let f = |m: usize| 1.0 + xi[m] * af[m];
+                    let mut g = [0.0; 3];
+                    g[m0] = 0.25 * (-2.0 * xi[m0]) * f(o1) * f(o2);
+                    g[o1] = 0.25 * (1.0 - xi[m0] * xi[m0]) * af[o1] * f(o2);
+                    g[o2] = 0.25 * (1.0 - xi[m0] * xi[m0]) * f(o1) * af[o2];
+                    g
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Natural points where the Jacobian is checked: the 8 corners plus the Gauss points
+/// (2×2×2 for Hex8, 3×3×3 for quadratic elements).
+pub fn quality_points(kind: ElementKind) -> Vec<[f64; 3]> {
+    let mut pts: Vec<[f64; 3]> =
+        HEX27_NATURAL[..8].iter().map(|a| [a[0] as f64, a[1] as f64, a[2] as f64]).collect();
+    let g: Vec<f64> = if kind == ElementKind::Hex8 {
+        vec![-1.0 / 3f64.sqrt(), 1.0 / 3f64.sqrt()]
+    } else {
+        vec![-(0.6f64).sqrt(), 0.0, 0.6f64.sqrt()]
+    };
+    for &a in &g {
+        for &b in &g {
+            for &c in &g {
+                pts.push([a, b, c]);
+            }
+        }
+    }
+    pts
+}
+
+/// Jacobian matrix columns (∂x/∂ξ, ∂x/∂η, ∂x/∂ζ) of an element at a natural point.
+pub fn jacobian_columns(coords: &[[f64; 3]], grads: &[[f64; 3]]) -> [[f64; 3]; 3] {
+    let mut j = [[0.0; 3]; 3];
+    for (x, g) in coords.iter().zip(grads) {
+        for c in 0..3 {
+            for r in 0..3 {
+                j[c][r] += x[r] * g[c];
+            }
+        }
+    }
+    j
+}
+
+fn det3(j: &[[f64; 3]; 3]) -> f64 {
+    let [a, b, c] = j;
+    a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+}
+
+/// Quality report; any non-positive Jacobian determinant is an error.
+pub fn mesh_quality(mesh: &Mesh) -> Result<MeshQuality, MeshError> {
+    let pts = quality_points(mesh.kind);
+    let grads: Vec<Vec<[f64; 3]>> = pts.iter().map(|p| shape_gradients(mesh.kind, *p)).collect();
+    let mut q = MeshQuality {
+        min_scaled_jacobian: f64::INFINITY,
+        worst_element: 0,
+        min_det_jacobian: f64::INFINITY,
+        points_checked: 0,
+    };
+    let mut coords = Vec::with_capacity(27);
+    for e in 0..mesh.n_elements() {
+        coords.clear();
+        coords.extend(mesh.element(e).iter().map(|&n| mesh.nodes[n]));
+        for (p, g) in pts.iter().zip(&grads) {
+            let j = jacobian_columns(&coords, g);
+            let det = det3(&j);
+            let norm = |v: &[f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let sj = det / (norm(&j[0]) * norm(&j[1]) * norm(&j[2]));
+            if !(det > 0.0) || !sj.is_finite() {
+                return Err(MeshError::Inverted { element: e, det, at: *p });
+            }
+            if sj < q.min_scaled_jacobian {
+                q.min_scaled_jacobian = sj;
+                q.worst_element = e;
+            }
+            q.min_det_jacobian = q.min_det_jacobian.min(det);
+            q.points_checked += 1;
+        }
+    }
+    Ok(q)
+}

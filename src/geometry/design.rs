@@ -126,15 +126,45 @@ pub fn r_min_extended() -> f64 {
 
 /// Safe lower bound on l for the extended range at a given r (GEOMETRY.md §4.3).
 ///
-/// At the waist the section is the construction section scaled by l/T and the wall normal is
-/// horizontal, so the inner (offset) section is well defined when, with a safety margin,
-/// * the lobe arc radius r·l/T exceeds the wall t by 0.5 mm (inner lobe radius ≥ 0.5 mm),
-/// * the lobe neck (√3·e − 2r)·l/T exceeds 2t + 1 mm (the two offset notch walls keep ≥ 1 mm apart),
-/// * the notch bottom B·l/T exceeds t + 1 mm (the inner wall stays ≥ 1 mm off the axis),
-/// and never below 0 (the profile exists for l ∈ [0, 20]). [`crate::geometry::ActuatorGeometry::new`]
-/// additionally checks the principal curvatures of the whole outer surface against 1/(t + 0.5).
-/// For r = 5√3 this gives 7.54 mm; for r close to R√21/14 the bound exceeds 20 (no valid l).
+/// Two conditions, both with a safety margin:
+/// 1. **Global, at the waist** (analytic; the section there is the construction section scaled by
+///    l/T and the wall normal is horizontal): the lobe neck (√3·e − 2r)·l/T ≥ 2t + 1 mm (the two
+///    offset notch walls stay ≥ 1 mm apart) and the notch bottom B·l/T ≥ t + 1 mm (the inner wall
+///    stays ≥ 1 mm off the axis); see [`l_min_waist`].
+/// 2. **Local offset validity**: every convex principal radius of the untwisted outer surface S0
+///    is ≥ t + 0.5 mm (so the inner wall's radii stay ≥ 0.5 mm). For l ≥ 10 the smallest radius is
+///    the waist lobe r·l/T, but for smaller l the one-sided limit on the lobe flanks at the
+///    profile junctions z = L/4, 3L/4 takes over, so this bound is found by bisection in l on
+///    the sampled principal curvatures ([`offset_locally_valid`]).
+///
+/// l = 20 is always allowed when r ≤ 20 satisfies condition 1 at l = 20; if no l ≤ 20 works the
+/// bound is returned as infinite (no valid l for that r). For r = 5√3 the bound is ≈ 7.91 mm
+/// (Table I's l ≥ 10 is inside it everywhere).
 pub fn l_min_extended(r: f64) -> f64 {
+    let l0 = l_min_waist(r);
+    if l0 > R_TUBE {
+        return l0;
+    }
+    if offset_locally_valid(r, l0) {
+        return l0;
+    }
+    if !offset_locally_valid(r, R_TUBE) {
+        return f64::INFINITY;
+    }
+    let (mut lo, mut hi) = (l0, R_TUBE);
+    while hi - lo > 1e-7 {
+        let mid = 0.5 * (lo + hi);
+        if offset_locally_valid(r, mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi + 1e-6
+}
+
+/// The analytic waist conditions of [`l_min_extended`] (also r·l/T ≥ t + 0.5 for the waist lobe).
+pub fn l_min_waist(r: f64) -> f64 {
     let s = section_constants_f64(r);
     let t = T_WALL;
     let c1 = (t + 0.5) * s.t_max / r;
@@ -142,6 +172,12 @@ pub fn l_min_extended(r: f64) -> f64 {
     let c2 = if neck > 0.0 { (2.0 * t + 1.0) * s.t_max / neck } else { f64::INFINITY };
     let c3 = if s.b_min > 0.0 { (t + 1.0) * s.t_max / s.b_min } else { f64::INFINITY };
     c1.max(c2).max(c3).max(0.0)
+}
+
+/// True when every sampled convex principal radius of S0 is ≥ t + 0.5 mm.
+pub fn offset_locally_valid(r: f64, l: f64) -> bool {
+    let act = super::Actuator::new(r, l, 0.0);
+    super::max_convex_curvature0(&act) * (T_WALL + 0.5) < 1.0
 }
 
 /// A design: a value for every parameter of a [`DesignSpace`], by name.
@@ -264,6 +300,16 @@ impl Design {
                     });
                 }
                 let lmin = l_min_extended(r.max(rmin));
+                if lmin > R_TUBE {
+                    return Err(GeometryError::OutOfRange {
+                        name: P_R.into(),
+                        value: r,
+                        range: rr,
+                        hint: format!(
+                            " (extended range; at r_mm = {r} no l_mm <= 20 keeps the inward offset of t = {T_WALL} mm free of self-intersection)"
+                        ),
+                    });
+                }
                 let lr = range_text(lmin, R_TUBE, "mm");
                 if !l.is_finite() {
                     return Err(GeometryError::NotFinite { name: P_L.into(), value: l, range: lr });

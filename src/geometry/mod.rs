@@ -14,7 +14,7 @@ pub mod scalar;
 pub mod volume;
 
 pub use design::{
-    l_min_extended, r_min_extended, Design, DesignSpace, GeometryError, ParamSpec, RangePolicy,
+    l_min_extended, l_min_waist, offset_locally_valid, r_min_extended, Design, DesignSpace, GeometryError, ParamSpec, RangePolicy,
     P_ALPHA, P_L, P_R,
 };
 pub use scalar::Scalar;
@@ -398,6 +398,24 @@ pub struct GeometrySummary {
     pub min_convex_radius_outer_mm: f64,
 }
 
+/// Largest convex principal curvature of S0 over a 240 × 81 sample grid in (ŝ, z), which
+/// contains the waist z = L/2, the lobe tips and the profile junctions z = L/4, 3L/4 (where the
+/// convex one-sided limit is evaluated).
+pub fn max_convex_curvature0(act: &Actuator<f64>) -> f64 {
+    let mut kmax: f64 = 0.0;
+    let ns = 240;
+    let nz = 81;
+    for i in 0..ns {
+        let shat = i as f64 / ns as f64;
+        for j in 0..nz {
+            let z = L_TUBE * j as f64 / (nz - 1) as f64;
+            let (k1, _) = act.principal_curvatures0(shat, z);
+            kmax = kmax.max(k1);
+        }
+    }
+    kmax
+}
+
 /// A validated design and its geometry (f64).
 #[derive(Clone, Debug)]
 pub struct ActuatorGeometry {
@@ -420,7 +438,7 @@ impl ActuatorGeometry {
                 return Err(GeometryError::OutOfRange {
                     name: P_L.into(),
                     value: l,
-                    range: format!("[{:.4}, 20] mm", l_min_extended(r)),
+                    range: format!("[{:.4}, 20] mm", l_min_extended(r).min(f64::MAX)),
                     hint: format!(
                         " (at r_mm = {r} the outer surface has a convex radius {:.3} mm < t + 0.5 mm: the inward offset would self-intersect)",
                         1.0 / kmax
@@ -464,20 +482,9 @@ impl ActuatorGeometry {
     }
 
     /// Largest convex principal curvature of the untwisted outer surface over a sample grid
-    /// (including the waist z = L/2 and the lobe arcs).
+    /// (see [`max_convex_curvature0`]).
     pub fn max_convex_curvature0(&self) -> f64 {
-        let mut kmax: f64 = 0.0;
-        let ns = 240;
-        let nz = 81;
-        for i in 0..ns {
-            let shat = i as f64 / ns as f64;
-            for j in 0..nz {
-                let z = L_TUBE * j as f64 / (nz - 1) as f64;
-                let (k1, _) = self.act.principal_curvatures0(shat, z);
-                kmax = kmax.max(k1);
-            }
-        }
-        kmax
+        max_convex_curvature0(&self.act)
     }
 
     /// Inner end-face area A_in = (R/T)²A − t(R/T)P + πt² (closed form, Steiner).

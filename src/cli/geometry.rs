@@ -22,17 +22,19 @@ pub enum Order {
 
 #[derive(Debug, Args)]
 pub struct GeometryArgs {
-    /// Arc radius r of the horseshoe section in mm (Table I: 5√3 ≈ 8.660254 … 20).
+    /// Design parameter r_mm: arc radius r of the horseshoe section in mm (Table I: 5√3 ≈ 8.660254 … 20).
     #[arg(long = "r", value_name = "MM", allow_negative_numbers = true)]
     pub r: f64,
-    /// Waist radius l of the bellows profile in mm (Table I: 10 … 20).
+    /// Design parameter l_mm: waist radius l of the bellows profile in mm (Table I: 10 … 20).
     #[arg(long = "l", value_name = "MM", allow_negative_numbers = true)]
     pub l: f64,
-    /// Pre-twist α of the top face in degrees (Table I: 60 … 360; counter-clockwise about +z).
+    /// Design parameter alpha_deg: pre-twist α of the top face in degrees (Table I: 60 … 360;
+    /// counter-clockwise about +z).
     #[arg(long = "alpha", value_name = "DEG", allow_negative_numbers = true)]
     pub alpha: f64,
     /// Mesh: a preset (coarse = 24x8x1, default = 48x16x2, fine = 96x32x3) or an explicit
-    /// <Na>x<Nz>x<Nt> (elements around, along, through; Na a multiple of 3, Nz of 4).
+    /// <Na>x<Nz>x<Nt> (elements around, along, through; Na a multiple of 3, Nz of 4). The same
+    /// element counts are used with --order linear.
     #[arg(long, value_name = "PRESET|NAxNZxNT", default_value = "default")]
     pub mesh: String,
     /// Element order.

@@ -535,35 +535,114 @@ fn det3(j: &[[f64; 3]; 3]) -> f64 {
     a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
 }
 
-/// Quality report; any non-positive Jacobian determinant is an error.
-pub fn mesh_quality(mesh: &Mesh) -> Result<MeshQuality, MeshError> {
+/// Per element: (min scaled Jacobian, min Jacobian determinant, natural point of the minimum
+/// determinant) over the corners and Gauss points of [`quality_points`].
+pub fn element_jacobian_extremes(mesh: &Mesh) -> Vec<(f64, f64, [f64; 3])> {
     let pts = quality_points(mesh.kind);
     let grads: Vec<Vec<[f64; 3]>> = pts.iter().map(|p| shape_gradients(mesh.kind, *p)).collect();
+    let mut coords = Vec::with_capacity(27);
+    let norm = |v: &[f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (0..mesh.n_elements())
+        .map(|e| {
+            coords.clear();
+            coords.extend(mesh.element(e).iter().map(|&n| mesh.nodes[n]));
+            let mut out = (f64::INFINITY, f64::INFINITY, pts[0]);
+            for (p, g) in pts.iter().zip(&grads) {
+                let j = jacobian_columns(&coords, g);
+                let det = det3(&j);
+                let sj = det / (norm(&j[0]) * norm(&j[1]) * norm(&j[2]));
+                // NaN-safe: a NaN determinant or scaled Jacobian counts as inverted
+                let sj = if sj.is_finite() { sj } else { f64::NEG_INFINITY };
+                let det = if det.is_finite() { det } else { f64::NEG_INFINITY };
+                out.0 = out.0.min(sj);
+                if det < out.1 {
+                    out.1 = det;
+                    out.2 = *p;
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// Minimum scaled Jacobian of every element (cell data for exports).
+pub fn element_scaled_jacobians(mesh: &Mesh) -> Vec<f64> {
+    element_jacobian_extremes(mesh).into_iter().map(|x| x.0).collect()
+}
+
+/// Quality report; any non-positive (or non-finite) Jacobian determinant is an error.
+pub fn mesh_quality(mesh: &Mesh) -> Result<MeshQuality, MeshError> {
+    let per = element_jacobian_extremes(mesh);
+    let npts = quality_points(mesh.kind).len();
     let mut q = MeshQuality {
         min_scaled_jacobian: f64::INFINITY,
         worst_element: 0,
         min_det_jacobian: f64::INFINITY,
-        points_checked: 0,
+        points_checked: per.len() * npts,
     };
-    let mut coords = Vec::with_capacity(27);
-    for e in 0..mesh.n_elements() {
-        coords.clear();
-        coords.extend(mesh.element(e).iter().map(|&n| mesh.nodes[n]));
-        for (p, g) in pts.iter().zip(&grads) {
-            let j = jacobian_columns(&coords, g);
-            let det = det3(&j);
-            let norm = |v: &[f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            let sj = det / (norm(&j[0]) * norm(&j[1]) * norm(&j[2]));
-            if !(det > 0.0) || !sj.is_finite() {
-                return Err(MeshError::Inverted { element: e, det, at: *p });
-            }
-            if sj < q.min_scaled_jacobian {
-                q.min_scaled_jacobian = sj;
-                q.worst_element = e;
-            }
-            q.min_det_jacobian = q.min_det_jacobian.min(det);
-            q.points_checked += 1;
+    for (e, &(sj, det, at)) in per.iter().enumerate() {
+        if !(det > 0.0) || !(sj > 0.0) {
+            return Err(MeshError::Inverted { element: e, det, at });
         }
+        if sj < q.min_scaled_jacobian {
+            q.min_scaled_jacobian = sj;
+            q.worst_element = e;
+        }
+        q.min_det_jacobian = q.min_det_jacobian.min(det);
+    }
+    if per.is_empty() {
+        return Err(MeshError::Spec("mesh has no elements".into()));
     }
     Ok(q)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shape_gradients_reproduce_affine_map_for_all_kinds() {
+        // an affine map x = A ξ + b must give J = A exactly at any point, for every element kind
+        let a = [[2.0, 0.3, -0.1], [0.1, 1.5, 0.2], [-0.2, 0.4, 0.7]];
+        for kind in [ElementKind::Hex8, ElementKind::Hex20, ElementKind::Hex27] {
+            let coords: Vec<[f64; 3]> = kind
+                .natural_coords()
+                .iter()
+                .map(|n| {
+                    let xi = [n[0] as f64, n[1] as f64, n[2] as f64];
+                    [0, 1, 2].map(|r| a[r][0] * xi[0] + a[r][1] * xi[1] + a[r][2] * xi[2] + 1.0)
+                })
+                .collect();
+            for p in quality_points(kind).into_iter().chain([[0.3, -0.7, 0.1]]) {
+                let g = shape_gradients(kind, p);
+                let sum: [f64; 3] = [0, 1, 2].map(|c| g.iter().map(|v| v[c]).sum());
+                assert!(sum.iter().all(|s| s.abs() < 1e-13), "{kind:?}: partition of unity");
+                let j = jacobian_columns(&coords, &g);
+                for c in 0..3 {
+                    for r in 0..3 {
+                        assert!((j[c][r] - a[r][c]).abs() < 1e-13, "{kind:?} at {p:?}");
+                    }
+                }
+                assert!((det3(&j) - det3(&a)).abs() < 1e-12, "det J = det A");
+            }
+        }
+    }
+
+    #[test]
+    fn inverted_element_is_an_error() {
+        let coords: Vec<[f64; 3]> = HEX27_NATURAL[..8].iter().map(|n| [n[0] as f64, n[1] as f64, -(n[2] as f64)]).collect();
+        let mesh = Mesh {
+            nodes: coords,
+            kind: ElementKind::Hex8,
+            connectivity: (0..8).collect(),
+            node_sets: BTreeMap::new(),
+            face_sets: BTreeMap::new(),
+        };
+        let e = mesh_quality(&mesh).unwrap_err();
+        assert!(matches!(e, MeshError::Inverted { element: 0, .. }), "{e}");
+        let mut ok = mesh.clone();
+        ok.nodes.iter_mut().for_each(|p| p[2] = -p[2]);
+        let q = mesh_quality(&ok).unwrap();
+        assert!((q.min_scaled_jacobian - 1.0).abs() < 1e-14);
+    }
 }

@@ -7,9 +7,9 @@ use clap::{Args, ValueEnum};
 use serde_json::{json, Value};
 use twistopt_solver::mesh::ElementKind;
 
-use crate::export::{cavity_surface, outer_surface, write_inp, write_stl_binary, write_vtu};
+use crate::export::{cavity_surface, outer_surface, write_inp, write_stl_binary, write_vtu, DataArray};
 use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
-use crate::meshing::{build_mesh, MeshSpec};
+use crate::meshing::{build_mesh, element_scaled_jacobians, mesh_shape_derivatives, MeshSpec};
 
 /// Element order of the mesh.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -78,7 +78,13 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
 
     let dir: &Path = &args.out;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
-    write_vtu(&dir.join("mesh.vtu"), &am.mesh, &[], &[])?;
+    // point data: shape derivatives dX/dp for every design parameter; cell data: quality
+    let ders = mesh_shape_derivatives(&geom, &spec)?;
+    let flat: Vec<(String, Vec<f64>)> =
+        ders.iter().map(|(n, d)| (format!("dX_d{n}"), d.iter().flatten().copied().collect())).collect();
+    let point_data: Vec<DataArray<'_>> = flat.iter().map(|(n, v)| DataArray::new(n, 3, v)).collect();
+    let sj = element_scaled_jacobians(&am.mesh);
+    write_vtu(&dir.join("mesh.vtu"), &am.mesh, &point_data, &[DataArray::new("min_scaled_jacobian", 1, &sj)])?;
     write_stl_binary(&dir.join("outer.stl"), &outer, "outer")?;
     write_stl_binary(&dir.join("cavity.stl"), &cavity, "cavity")?;
     let heading = format!(

@@ -77,6 +77,18 @@ def main():
     want = VTK_NAMES[s["element_kind"]]
     if types != {want}:
         fail(f"mesh.vtu: cell types {types}, expected {{{want}}}")
+    for name in ("dX_dr_mm", "dX_dl_mm", "dX_dalpha_deg"):
+        arr = vtu.point_data.get(name)
+        if arr is None or arr.shape != (len(vtu.points), 3) or not np.all(np.isfinite(arr)):
+            fail(f"mesh.vtu: point data {name} missing or malformed")
+    # the bottom face does not move with alpha; the top ring turns by alpha: dX/dalpha = (pi/180) e_z x X
+    top = np.abs(vtu.points[:, 2] - 40.0) < 1e-9
+    rot = np.stack([-vtu.points[:, 1], vtu.points[:, 0], 0 * vtu.points[:, 0]], axis=1) * np.pi / 180.0
+    if not np.allclose(vtu.point_data["dX_dalpha_deg"][top], rot[top], atol=1e-9):
+        fail("mesh.vtu: dX_dalpha_deg on the top face is not the rigid rotation rate")
+    sj = np.concatenate(vtu.cell_data.get("min_scaled_jacobian", [np.zeros(0)]))
+    if len(sj) != n_cells or not (sj.min() > 0) or abs(sj.min() - s["min_scaled_jacobian"]) > 1e-9:
+        fail("mesh.vtu: cell data min_scaled_jacobian missing or inconsistent with summary.json")
     zmin, zmax = float(vtu.points[:, 2].min()), float(vtu.points[:, 2].max())
     if abs(zmin) > 1e-9 or abs(zmax - 40.0) > 1e-9:
         fail(f"mesh.vtu: z range [{zmin}, {zmax}] is not [0, 40]")

@@ -150,13 +150,13 @@ impl MeshSpec {
     }
 
     pub fn validate(&self) -> Result<(), MeshError> {
-        if self.n_around < 6 || self.n_around % 3 != 0 {
+        if self.n_around < 6 || !self.n_around.is_multiple_of(3) {
             return Err(MeshError::Spec(format!(
                 "n_around = {} must be a multiple of 3 and at least 6",
                 self.n_around
             )));
         }
-        if self.n_along < 4 || self.n_along % 4 != 0 {
+        if self.n_along < 4 || !self.n_along.is_multiple_of(4) {
             return Err(MeshError::Spec(format!(
                 "n_along = {} must be a positive multiple of 4 (element faces on the profile junctions)",
                 self.n_along

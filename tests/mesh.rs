@@ -140,7 +140,7 @@ fn arc_aligned_nodes_sit_on_the_curvature_jumps() {
     let am = build_mesh(&g, &spec).unwrap();
     // bottom ring of the outer surface: z = 0, λ = R/T, twist 0
     let na = spec.n_around;
-    let outer_ring: Vec<[f64; 3]> = (0..na).map(|i| am.mesh.nodes[(1 * (spec.n_along + 1)) * na + i]).collect();
+    let outer_ring: Vec<[f64; 3]> = (0..na).map(|i| am.mesh.nodes[(spec.n_along + 1) * na + i]).collect();
     let scale = 20.0 / s.t_max;
     let fl = s.lobe_fraction();
     for k in 0..3 {

@@ -73,14 +73,10 @@ fn face_triangles(mesh: &Mesh, face_nodes: &[usize], extra: &mut Vec<[f64; 3]>) 
                 // serendipity face map at (0, 0): −¼ Σ corners + ½ Σ mid-edges
                 let mut p = [0.0; 3];
                 for &k in c {
-                    for d in 0..3 {
-                        p[d] -= 0.25 * mesh.nodes[k][d];
-                    }
+                    p.iter_mut().zip(mesh.nodes[k]).for_each(|(a, x)| *a -= 0.25 * x);
                 }
                 for &k in m {
-                    for d in 0..3 {
-                        p[d] += 0.5 * mesh.nodes[k][d];
-                    }
+                    p.iter_mut().zip(mesh.nodes[k]).for_each(|(a, x)| *a += 0.5 * x);
                 }
                 extra.push(p);
                 mesh.nodes.len() + extra.len() - 1

@@ -6,7 +6,7 @@
 //!   is a rotation of horizontal slices and does not change volumes) and the two end planes.
 //!   By the divergence theorem with the field (x, y, 0)/2, whose flux through the horizontal
 //!   end planes vanishes,
-//!       V = ½ ∬ (x N_x + y N_y) dŝ dz,   N = ∂X/∂ŝ × ∂X/∂z  (points out of the cavity),
+//!   V = ½ ∬ (x N_x + y N_y) dŝ dz with N = ∂X/∂ŝ × ∂X/∂z (pointing out of the cavity),
 //!   over the inner wall parameterised by the outer-surface parameters (ŝ, z) ∈ [0,1) × [0, L].
 //!   The inner point's height differs from z in the sloped zones, but the parameterisation still
 //!   covers the inner wall exactly once (the end rings stay in the end planes because ρ' = 0

@@ -307,6 +307,13 @@ fn design_validation_names_parameter_and_range() {
             assert!(1.0 / g.max_convex_curvature0() > T_WALL + 0.5 - 1e-9);
         }
     }
+    // design vectors for optimisers, in DesignSpace order
+    let space = twistopt::geometry::DesignSpace::actuator();
+    assert_eq!(space.names(), vec!["r_mm", "l_mm", "alpha_deg"]);
+    let d = space.design_from_vec(&[10.0, 12.0, 90.0]).unwrap();
+    assert_eq!(d, Design::new(10.0, 12.0, 90.0));
+    assert_eq!(space.design_to_vec(&d).unwrap(), vec![10.0, 12.0, 90.0]);
+    assert!(space.design_from_vec(&[1.0]).unwrap_err().to_string().contains("r_mm, l_mm, alpha_deg"));
     // unknown / missing names
     assert!(Design::from_pairs(&[("r_mm", 10.0), ("l_mm", 12.0)]).unwrap_err().to_string().contains("alpha_deg"));
     assert!(Design::from_pairs(&[("r_mm", 10.0), ("l_mm", 12.0), ("alpha_deg", 90.0), ("h", 1.0)])

@@ -87,6 +87,32 @@ impl DesignSpace {
     pub fn get(&self, name: &str) -> Option<&ParamSpec> {
         self.params.iter().find(|p| p.name == name)
     }
+
+    pub fn len(&self) -> usize {
+        self.params.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.params.is_empty()
+    }
+
+    /// Design from a vector of values in the order of `params` (for optimisers).
+    pub fn design_from_vec(&self, x: &[f64]) -> Result<Design, GeometryError> {
+        if x.len() != self.params.len() {
+            return Err(GeometryError::Invalid(format!(
+                "design vector has {} entries; the design space has {} ({})",
+                x.len(),
+                self.params.len(),
+                self.names().join(", ")
+            )));
+        }
+        Ok(Design { values: self.params.iter().zip(x).map(|(p, v)| (p.name.clone(), *v)).collect() })
+    }
+
+    /// Values of a design in the order of `params`.
+    pub fn design_to_vec(&self, d: &Design) -> Result<Vec<f64>, GeometryError> {
+        self.params.iter().map(|p| d.get(&p.name)).collect()
+    }
 }
 
 /// Reasons a design or geometry request is rejected. Every message is one line and names the

@@ -321,3 +321,33 @@ fn design_validation_names_parameter_and_range() {
         .to_string()
         .contains("'h'"));
 }
+
+#[test]
+fn volume_and_area_derivatives_match_central_differences() {
+    let d0 = Design::new(11.3, 13.4, 123.0);
+    let g0 = ActuatorGeometry::new(&d0, RangePolicy::TableI).unwrap();
+    let ders = g0.scalar_derivatives();
+    assert_eq!(ders.len(), 3);
+    for sd in &ders {
+        let h = 1e-4;
+        let v = d0.get(&sd.param).unwrap();
+        let gp = ActuatorGeometry::new(&d0.with(&sd.param, v + h).unwrap(), RangePolicy::TableI).unwrap();
+        let gm = ActuatorGeometry::new(&d0.with(&sd.param, v - h).unwrap(), RangePolicy::TableI).unwrap();
+        let fd = |f: &dyn Fn(&ActuatorGeometry) -> f64| (f(&gp) - f(&gm)) / (2.0 * h);
+        let pairs = [
+            (sd.chamber_volume, fd(&|g| g.chamber_volume()), "chamber"),
+            (sd.outer_volume, fd(&|g| g.outer_volume()), "outer"),
+            (sd.wall_volume, fd(&|g| g.wall_volume()), "wall"),
+            (sd.inner_end_area, fd(&|g| g.inner_end_area()), "A_in"),
+            (sd.outer_end_area, fd(&|g| g.outer_end_area()), "A_out"),
+        ];
+        for (ad, f, what) in pairs {
+            assert!((ad - f).abs() < 1e-6 * (1.0 + f.abs()), "d{what}/d{}: dual {ad} vs FD {f}", sd.param);
+        }
+        if sd.param == "alpha_deg" {
+            assert!(sd.chamber_volume.abs() < 1e-9 && sd.outer_volume.abs() < 1e-9, "volumes do not depend on α");
+        } else {
+            assert!(sd.chamber_volume.abs() > 1.0, "d chamber / d{} should not vanish", sd.param);
+        }
+    }
+}

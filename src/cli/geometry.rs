@@ -100,6 +100,23 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
 
     let mut v = serde_json::to_value(geom.summary())?;
     let m = v.as_object_mut().context("summary is an object")?;
+    let ders: serde_json::Map<String, Value> = geom
+        .scalar_derivatives()
+        .into_iter()
+        .map(|d| {
+            (
+                d.param.clone(),
+                json!({
+                    "outer_volume_mm3": d.outer_volume,
+                    "chamber_volume_mm3": d.chamber_volume,
+                    "wall_volume_mm3": d.wall_volume,
+                    "inner_end_area_mm2": d.inner_end_area,
+                    "outer_end_area_mm2": d.outer_end_area,
+                }),
+            )
+        })
+        .collect();
+    m.insert("derivatives_per_parameter".into(), Value::Object(ders));
     m.insert("range_policy".into(), json!(format!("{:?}", policy)));
     m.insert("mesh".into(), json!(spec.size_string()));
     m.insert("element_kind".into(), json!(format!("{:?}", spec.kind)));

@@ -416,6 +416,29 @@ pub fn max_convex_curvature0(act: &Actuator<f64>) -> f64 {
     kmax
 }
 
+/// Inner end-face area A_in = (R/T)²A − t(R/T)P + πt² (Steiner formula for the offset curve).
+pub fn inner_end_area<D: Scalar>(s: &Section<D>) -> D {
+    let k = s.t_max.recip() * R_TUBE;
+    k * k * s.area - k * s.perimeter * T_WALL + PI * T_WALL * T_WALL
+}
+
+/// Outer end-face area (R/T)²A.
+pub fn outer_end_area<D: Scalar>(s: &Section<D>) -> D {
+    let k = s.t_max.recip() * R_TUBE;
+    k * k * s.area
+}
+
+/// d(output)/d(param) for the scalar geometry outputs.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ScalarDerivatives {
+    pub param: String,
+    pub outer_volume: f64,
+    pub chamber_volume: f64,
+    pub wall_volume: f64,
+    pub inner_end_area: f64,
+    pub outer_end_area: f64,
+}
+
 /// A validated design and its geometry (f64).
 #[derive(Clone, Debug)]
 pub struct ActuatorGeometry {
@@ -489,15 +512,35 @@ impl ActuatorGeometry {
 
     /// Inner end-face area A_in = (R/T)²A − t(R/T)P + πt² (closed form, Steiner).
     pub fn inner_end_area(&self) -> f64 {
-        let s = &self.act.section;
-        let k = R_TUBE / s.t_max;
-        k * k * s.area - T_WALL * k * s.perimeter + PI * T_WALL * T_WALL
+        inner_end_area(&self.act.section)
     }
 
     /// Outer end-face area (R/T)²A.
     pub fn outer_end_area(&self) -> f64 {
-        let s = &self.act.section;
-        (R_TUBE / s.t_max).powi(2) * s.area
+        outer_end_area(&self.act.section)
+    }
+
+    /// Derivatives of the scalar outputs (volumes, end areas) with respect to every named
+    /// design parameter (α per degree), by forward-mode dual numbers through the same
+    /// quadratures as the values.
+    pub fn scalar_derivatives(&self) -> Vec<ScalarDerivatives> {
+        DesignSpace::actuator()
+            .names()
+            .into_iter()
+            .map(|name| {
+                let a = self.dual_actuator(name).expect("known parameter");
+                let outer = volume::outer_volume(&a).eps;
+                let chamber = volume::chamber_volume(&a).eps;
+                ScalarDerivatives {
+                    param: name.to_string(),
+                    outer_volume: outer,
+                    chamber_volume: chamber,
+                    wall_volume: outer - chamber,
+                    inner_end_area: inner_end_area(&a.section).eps,
+                    outer_end_area: outer_end_area(&a.section).eps,
+                }
+            })
+            .collect()
     }
 
     /// Outer volume (A/T²)∫ρ²dz (Gauss–Legendre per profile arc: exact to round-off).

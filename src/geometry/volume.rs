@@ -15,10 +15,10 @@
 //!   converges spectrally; 3-fold symmetry reduces the work to one 120° sector. The partial
 //!   derivatives come from forward-mode dual numbers.
 
-use num_dual::Dual64;
+use num_dual::Dual;
 
-use super::scalar::gauss_legendre;
-use super::{Actuator, L_TUBE};
+use super::scalar::{cst, gauss_legendre};
+use super::{Actuator, Scalar, L_TUBE};
 
 /// Quadrature points per patch direction for the volume integrals.
 pub const VOLUME_QUADRATURE_POINTS: usize = 48;
@@ -27,16 +27,16 @@ fn z_patches() -> [(f64, f64); 3] {
     [(0.0, L_TUBE / 4.0), (L_TUBE / 4.0, 3.0 * L_TUBE / 4.0), (3.0 * L_TUBE / 4.0, L_TUBE)]
 }
 
-/// Outer volume (A/T²)∫ρ²dz.
-pub fn outer_volume(act: &Actuator<f64>) -> f64 {
+/// Outer volume (A/T²)∫ρ²dz (generic: pass a dual-number actuator for derivatives).
+pub fn outer_volume<D: Scalar>(act: &Actuator<D>) -> D {
     let (x, w) = gauss_legendre(VOLUME_QUADRATURE_POINTS);
-    let mut integral = 0.0;
+    let mut integral = cst::<D>(0.0);
     for (a, b) in z_patches() {
         let h = 0.5 * (b - a);
         for (xi, wi) in x.iter().zip(&w) {
             let z = a + h * (xi + 1.0);
-            let rho = act.profile.eval(z).rho;
-            integral += wi * h * rho * rho;
+            let rho = act.profile.eval(cst(z)).rho;
+            integral += rho * rho * (wi * h);
         }
     }
     act.section.area / (act.section.t_max * act.section.t_max) * integral
@@ -44,44 +44,49 @@ pub fn outer_volume(act: &Actuator<f64>) -> f64 {
 
 /// Volume enclosed by the wall surface at offset fraction `eta` (0 = outer surface, 1 = inner
 /// wall = chamber) and the two end planes, by the surface integral described in the module
-/// docs, with `n` Gauss points per patch direction.
-pub fn enclosed_volume(act: &Actuator<f64>, eta: f64, n: usize) -> f64 {
+/// docs, with `n` Gauss points per patch direction. Generic: with a dual-number actuator the
+/// result carries the derivative with respect to the seeded design parameter (the surface
+/// partials ∂X/∂ŝ, ∂X/∂z use a nested dual number).
+pub fn enclosed_volume<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
     let s = &act.section;
-    let ad = Actuator::<Dual64>::new(Dual64::from(s.r), Dual64::from(act.profile.l), Dual64::from(0.0));
+    let zero = cst::<D>(0.0);
+    let one = cst::<D>(1.0);
+    let lift = |x: D| Dual::new(x, zero);
+    let ad = Actuator::<Dual<D>>::new(lift(s.r), lift(act.profile.l), lift(zero));
     let (x, w) = gauss_legendre(n);
     let fl = s.lobe_fraction();
     let s0 = s.lobe_start_shat(0);
-    let mut patches_s = vec![(s0, s0 + fl / 3.0)];
-    if s.theta_n > 0.0 {
-        patches_s.push((s0 + fl / 3.0, s0 + 1.0 / 3.0));
+    let mut patches_s = vec![(s0, s0 + fl * (1.0 / 3.0))];
+    if s.theta_n.re() > 0.0 {
+        patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
     }
-    let eta_d = Dual64::from(eta);
-    let mut total = 0.0;
+    let eta_d = lift(cst(eta));
+    let mut total = zero;
     for &(sa, sb) in &patches_s {
-        let hs = 0.5 * (sb - sa);
+        let hs = (sb - sa) * 0.5;
         for (za, zb) in z_patches() {
             let hz = 0.5 * (zb - za);
             for (xs, ws) in x.iter().zip(&w) {
                 let shat = sa + hs * (xs + 1.0);
                 for (xz, wz) in x.iter().zip(&w) {
-                    let z = za + hz * (xz + 1.0);
-                    let ps = ad.untwisted_point(Dual64::new(shat, 1.0), Dual64::from(z), eta_d);
-                    let pz = ad.untwisted_point(Dual64::from(shat), Dual64::new(z, 1.0), eta_d);
+                    let z = cst::<D>(za + hz * (xz + 1.0));
+                    let ps = ad.untwisted_point(Dual::new(shat, one), lift(z), eta_d);
+                    let pz = ad.untwisted_point(lift(shat), Dual::new(z, one), eta_d);
                     let xs_ = [ps[0].eps, ps[1].eps, ps[2].eps];
                     let xz_ = [pz[0].eps, pz[1].eps, pz[2].eps];
                     let nx = xs_[1] * xz_[2] - xs_[2] * xz_[1];
                     let ny = xs_[2] * xz_[0] - xs_[0] * xz_[2];
-                    let f = 0.5 * (ps[0].re * nx + ps[1].re * ny);
-                    total += ws * wz * hs * hz * f;
+                    let f = (ps[0].re * nx + ps[1].re * ny) * 0.5;
+                    total += f * hs * (ws * wz * hz);
                 }
             }
         }
     }
-    3.0 * total
+    total * 3.0
 }
 
 /// Chamber volume (cavity between the inner wall and the end planes).
-pub fn chamber_volume(act: &Actuator<f64>) -> f64 {
+pub fn chamber_volume<D: Scalar>(act: &Actuator<D>) -> D {
     enclosed_volume(act, 1.0, VOLUME_QUADRATURE_POINTS)
 }
 

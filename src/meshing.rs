@@ -165,9 +165,9 @@ impl MeshSpec {
         if self.n_through < 1 {
             return Err(MeshError::Spec("n_through must be at least 1".into()));
         }
-        if self.n_around * self.n_along * self.n_through > 5_000_000 {
+        if self.n_around * self.n_along * self.n_through > 1_000_000 {
             return Err(MeshError::Spec(format!(
-                "{} elements requested; the limit is 5 000 000",
+                "{} elements requested; the limit is 1 000 000",
                 self.n_around * self.n_along * self.n_through
             )));
         }

@@ -35,6 +35,9 @@ fn bad_input_gives_one_line_errors_naming_the_field() {
     expect_error(&["geometry", "--r", "10", "--l", "12", "--alpha", "90", "--mesh", "40x16x2", "--out", o], "n_around");
     expect_error(&["geometry", "--r", "10", "--l", "12", "--alpha", "inf", "--out", o], "alpha_deg");
     expect_error(&["geometry", "--r", "6", "--l", "15", "--alpha", "90", "--extended-range", "--out", o], "r_mm");
+    expect_error(&["geometry", "--r", "10", "--l", "12", "--alpha", "abc", "--out", o], "--alpha");
+    expect_error(&["geometry", "--r", "10", "--l", "12", "--out", o], "--alpha");
+    expect_error(&["geometry", "--r", "10", "--l", "12", "--alpha", "90", "--mesh", "3000x400x4", "--out", o], "limit");
     assert!(!d.join("summary.json").exists(), "nothing is written on error");
 }
 

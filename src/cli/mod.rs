@@ -11,8 +11,11 @@ pub mod geometry;
 /// The actuator is a tube (outer radius 20 mm, height 40 mm, wall 3 mm) whose cross-section is a
 /// triangular "horseshoe" of six arcs of radius r, whose lateral edge is a three-arc bellows with
 /// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
+///
+/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports). The FE evaluation,
+/// gradients and the optimiser are in progress. Run `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
-#[command(name = "twistopt", version, about, long_about = None, propagate_version = true)]
+#[command(name = "twistopt", version, propagate_version = true)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,

@@ -1,0 +1,439 @@
+//! Constraints and the map from the reduced unknowns q to nodal displacements u(q).
+//!
+//! Each nodal displacement component is one of:
+//! * free: its own reduced unknown;
+//! * prescribed: a value set by the load path (0 = fixed);
+//! * linear: Σ c_k q_k — a cyclic-symmetry slave u_b = Q u_a of a free master node;
+//! * rigid: the component of c + (R(ψ) − I)(X − X_ref) of a rigid body with translation c and
+//!   rotation vector ψ (exact large rotations, R = exp[ψ×]).
+//!
+//! Rigid-body DOFs (3 translations, 3 rotation-vector components) are themselves free or
+//! prescribed. The reduced residual is r = (∂u/∂q)ᵀ R(u) and the reduced tangent
+//! (∂u/∂q)ᵀ K (∂u/∂q) + Σ R_i ∂²u_i/∂q² (the last term from the rotations).
+
+use crate::scalar::Scalar;
+use num_dual::HyperDual64;
+
+/// How one scalar DOF is treated.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum DofSpec {
+    Free,
+    /// Held at a value (scaled along the load path like every prescribed value).
+    Prescribed(f64),
+}
+
+/// A rigid body: a reference point with 6 DOFs (translation x,y,z; rotation vector x,y,z) to which
+/// the components `mask` of a node set are kinematically coupled.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RigidBody {
+    pub name: String,
+    pub reference: [f64; 3],
+    pub nodes: Vec<usize>,
+    pub mask: [bool; 3],
+    pub dofs: [DofSpec; 6],
+}
+
+/// Rotational periodicity: u(b) = Q u(a) for each pair (a, b), Q = rotation by `angle` about +z.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Cyclic {
+    pub pairs: Vec<(usize, usize)>,
+    pub angle: f64,
+}
+
+/// All kinematic constraints of a model.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct Constraints {
+    /// (node, component, prescribed value at the end of the load path; 0 = fixed)
+    pub prescribed: Vec<(usize, usize, f64)>,
+    pub cyclic: Option<Cyclic>,
+    pub bodies: Vec<RigidBody>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Comp {
+    Free(u32),
+    Presc(u32),
+    /// start index and count into `terms`
+    Lin(u32, u8),
+    Rigid(u16),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BodyDof {
+    Free(usize),
+    Presc(usize),
+}
+
+/// Errors in the constraint definition.
+#[derive(Debug, thiserror::Error)]
+pub enum ConstraintError {
+    #[error("node {0} is constrained twice ({1})")]
+    Conflict(usize, &'static str),
+    #[error("cyclic pair ({0}, {1}): one node is constrained and the other is not")]
+    CyclicMismatch(usize, usize),
+    #[error("node index {0} out of range")]
+    BadNode(usize),
+}
+
+/// The compiled map u(q).
+#[derive(Clone, Debug)]
+pub struct DofMap {
+    pub(crate) comps: Vec<Comp>, // 3 per node
+    pub(crate) terms: Vec<(u32, f64)>,
+    pub n_free: usize,
+    pub body_dofs: Vec<[BodyDof; 6]>,
+    pub bodies: Vec<RigidBody>,
+    /// target value of each prescribed slot at the end of a load path
+    pub presc_targets: Vec<f64>,
+    /// (node, comp) of each prescribed nodal slot (body slots are listed in body_dofs)
+    pub presc_nodes: Vec<(usize, usize)>,
+}
+
+/// Kinematics of one rigid body at the current state.
+#[derive(Clone, Debug)]
+pub struct BodyKin {
+    pub c: [f64; 3],
+    pub psi: [f64; 3],
+    pub r: [[f64; 3]; 3],
+    pub dr: [[[f64; 3]; 3]; 3],
+    pub d2r: [[[[f64; 3]; 3]; 3]; 3],
+}
+
+/// R(ψ) = I + a(s) K + b(s) K², K = [ψ×], s = |ψ|², generic over the scalar (Rodrigues with a
+/// series near ψ = 0 so that derivatives stay exact there).
+pub fn rotation<D: Scalar>(psi: [D; 3]) -> [[D; 3]; 3] {
+    let s = psi[0] * psi[0] + psi[1] * psi[1] + psi[2] * psi[2];
+    let (a, b) = if s.re() < 1e-2 {
+        (
+            D::one() - s / 6.0 + s * s / 120.0 - s * s * s / 5040.0 + s * s * s * s / 362880.0,
+            D::from(0.5) - s / 24.0 + s * s / 720.0 - s * s * s / 40320.0 + s * s * s * s / 3628800.0,
+        )
+    } else {
+        let n = s.sqrt();
+        (n.sin() / n, (D::one() - n.cos()) / s)
+    };
+    let k = [[D::zero(), -psi[2], psi[1]], [psi[2], D::zero(), -psi[0]], [-psi[1], psi[0], D::zero()]];
+    let mut r = [[D::zero(); 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            let mut k2 = D::zero();
+            for m in 0..3 {
+                k2 += k[i][m] * k[m][j];
+            }
+            r[i][j] = k[i][j] * a + k2 * b;
+        }
+        r[i][i] += D::one();
+    }
+    r
+}
+
+impl BodyKin {
+    pub fn new(c: [f64; 3], psi: [f64; 3]) -> Self {
+        let mut dr = [[[0.0; 3]; 3]; 3];
+        let mut d2r = [[[[0.0; 3]; 3]; 3]; 3];
+        for a in 0..3 {
+            for b in a..3 {
+                let mut p = [HyperDual64::from(psi[0]), HyperDual64::from(psi[1]), HyperDual64::from(psi[2])];
+                p[a].eps1 = 1.0;
+                p[b].eps2 = 1.0;
+                let rr = rotation(p);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        dr[a][i][j] = rr[i][j].eps1;
+                        dr[b][i][j] = rr[i][j].eps2;
+                        d2r[a][b][i][j] = rr[i][j].eps1eps2;
+                        d2r[b][a][i][j] = rr[i][j].eps1eps2;
+                    }
+                }
+            }
+        }
+        BodyKin { c, psi, r: rotation(psi), dr, d2r }
+    }
+    /// Displacement of a point at offset d = X − X_ref.
+    pub fn disp(&self, d: [f64; 3]) -> [f64; 3] {
+        let mut u = self.c;
+        for i in 0..3 {
+            u[i] += (0..3).map(|j| self.r[i][j] * d[j]).sum::<f64>() - d[i];
+        }
+        u
+    }
+}
+
+impl DofMap {
+    pub fn build(n_nodes: usize, cons: &Constraints) -> Result<DofMap, ConstraintError> {
+        #[derive(Clone, Copy, PartialEq)]
+        enum Tag {
+            Free,
+            Presc(usize),
+            Rigid(u16),
+        }
+        let mut tag = vec![Tag::Free; 3 * n_nodes];
+        let mut presc_targets = Vec::new();
+        let mut presc_nodes = Vec::new();
+        for &(n, c, v) in &cons.prescribed {
+            if n >= n_nodes {
+                return Err(ConstraintError::BadNode(n));
+            }
+            if tag[3 * n + c] != Tag::Free {
+                // the same DOF listed twice: keep the first unless values differ
+                continue;
+            }
+            tag[3 * n + c] = Tag::Presc(presc_targets.len());
+            presc_targets.push(v);
+            presc_nodes.push((n, c));
+        }
+        for (bi, b) in cons.bodies.iter().enumerate() {
+            for &n in &b.nodes {
+                if n >= n_nodes {
+                    return Err(ConstraintError::BadNode(n));
+                }
+                for c in 0..3 {
+                    if b.mask[c] {
+                        if tag[3 * n + c] != Tag::Free {
+                            return Err(ConstraintError::Conflict(n, "rigid body on a constrained DOF"));
+                        }
+                        tag[3 * n + c] = Tag::Rigid(bi as u16);
+                    }
+                }
+            }
+        }
+        // cyclic slaves
+        let mut slave_of = vec![usize::MAX; n_nodes];
+        if let Some(cy) = &cons.cyclic {
+            for &(a, b) in &cy.pairs {
+                if a >= n_nodes || b >= n_nodes {
+                    return Err(ConstraintError::BadNode(a.max(b)));
+                }
+                let fa = (0..3).all(|c| tag[3 * a + c] == Tag::Free);
+                let fb = (0..3).all(|c| tag[3 * b + c] == Tag::Free);
+                let ca = (0..3).all(|c| tag[3 * a + c] != Tag::Free);
+                let cb = (0..3).all(|c| tag[3 * b + c] != Tag::Free);
+                if fa && fb {
+                    if slave_of[b] != usize::MAX {
+                        return Err(ConstraintError::Conflict(b, "cyclic slave twice"));
+                    }
+                    slave_of[b] = a;
+                } else if !(ca && cb) {
+                    return Err(ConstraintError::CyclicMismatch(a, b));
+                }
+            }
+        }
+        let mut comps = vec![Comp::Presc(0); 3 * n_nodes];
+        let mut n_free = 0u32;
+        for n in 0..n_nodes {
+            if slave_of[n] != usize::MAX {
+                continue;
+            }
+            for c in 0..3 {
+                comps[3 * n + c] = match tag[3 * n + c] {
+                    Tag::Free => {
+                        n_free += 1;
+                        Comp::Free(n_free - 1)
+                    }
+                    Tag::Presc(s) => Comp::Presc(s as u32),
+                    Tag::Rigid(b) => Comp::Rigid(b),
+                };
+            }
+        }
+        let mut terms = Vec::new();
+        if let Some(cy) = &cons.cyclic {
+            let (s, co) = cy.angle.sin_cos();
+            let q = [[co, -s, 0.0], [s, co, 0.0], [0.0, 0.0, 1.0]];
+            for n in 0..n_nodes {
+                let a = slave_of[n];
+                if a == usize::MAX {
+                    continue;
+                }
+                if slave_of[a] != usize::MAX {
+                    return Err(ConstraintError::Conflict(a, "cyclic master is itself a slave"));
+                }
+                for i in 0..3 {
+                    let start = terms.len() as u32;
+                    for j in 0..3 {
+                        if q[i][j] != 0.0 {
+                            if let Comp::Free(k) = comps[3 * a + j] {
+                                terms.push((k, q[i][j]));
+                            }
+                        }
+                    }
+                    comps[3 * n + i] = Comp::Lin(start, (terms.len() as u32 - start) as u8);
+                }
+            }
+        }
+        let mut n_red = n_free as usize;
+        let mut body_dofs = Vec::new();
+        for b in &cons.bodies {
+            let mut d = [BodyDof::Free(0); 6];
+            for (k, spec) in b.dofs.iter().enumerate() {
+                d[k] = match spec {
+                    DofSpec::Free => {
+                        n_red += 1;
+                        BodyDof::Free(n_red - 1)
+                    }
+                    DofSpec::Prescribed(v) => {
+                        presc_targets.push(*v);
+                        BodyDof::Presc(presc_targets.len() - 1)
+                    }
+                };
+            }
+            body_dofs.push(d);
+        }
+        Ok(DofMap {
+            comps,
+            terms,
+            n_free: n_red,
+            body_dofs,
+            bodies: cons.bodies.clone(),
+            presc_targets,
+            presc_nodes,
+        })
+    }
+
+    /// Number of reduced unknowns (free nodal DOFs + free rigid-body DOFs).
+    pub fn n_reduced(&self) -> usize {
+        self.n_free
+    }
+
+    /// Value of body DOF k of body b.
+    pub fn body_value(&self, b: usize, k: usize, q: &[f64], presc: &[f64]) -> f64 {
+        match self.body_dofs[b][k] {
+            BodyDof::Free(i) => q[i],
+            BodyDof::Presc(s) => presc[s],
+        }
+    }
+
+    pub fn body_kinematics(&self, q: &[f64], presc: &[f64]) -> Vec<BodyKin> {
+        (0..self.bodies.len())
+            .map(|b| {
+                let v: Vec<f64> = (0..6).map(|k| self.body_value(b, k, q, presc)).collect();
+                BodyKin::new([v[0], v[1], v[2]], [v[3], v[4], v[5]])
+            })
+            .collect()
+    }
+
+    /// Full nodal displacements u(q) given the reference coordinates.
+    pub fn expand(&self, x0: &[[f64; 3]], q: &[f64], presc: &[f64], kin: &[BodyKin]) -> Vec<[f64; 3]> {
+        let n = x0.len();
+        let mut u = vec![[0.0; 3]; n];
+        for node in 0..n {
+            for c in 0..3 {
+                u[node][c] = match self.comps[3 * node + c] {
+                    Comp::Free(k) => q[k as usize],
+                    Comp::Presc(s) => presc[s as usize],
+                    Comp::Lin(s, l) => self.terms[s as usize..(s as usize + l as usize)]
+                        .iter()
+                        .map(|(k, cf)| cf * q[*k as usize])
+                        .sum(),
+                    Comp::Rigid(b) => {
+                        let body = &self.bodies[b as usize];
+                        let d = sub(x0[node], body.reference);
+                        kin[b as usize].disp(d)[c]
+                    }
+                };
+            }
+        }
+        u
+    }
+
+    /// Row of ∂u/∂q for one nodal component: appends (reduced index, coefficient) pairs.
+    #[inline]
+    pub fn row(&self, x0: &[[f64; 3]], kin: &[BodyKin], node: usize, c: usize, out: &mut Vec<(u32, f64)>) {
+        match self.comps[3 * node + c] {
+            Comp::Free(k) => out.push((k, 1.0)),
+            Comp::Presc(_) => {}
+            Comp::Lin(s, l) => out.extend_from_slice(&self.terms[s as usize..s as usize + l as usize]),
+            Comp::Rigid(b) => {
+                let b = b as usize;
+                let d = sub(x0[node], self.bodies[b].reference);
+                for k in 0..6 {
+                    if let BodyDof::Free(i) = self.body_dofs[b][k] {
+                        let coef = if k < 3 {
+                            if k == c {
+                                1.0
+                            } else {
+                                0.0
+                            }
+                        } else {
+                            let dr = &kin[b].dr[k - 3];
+                            dr[c][0] * d[0] + dr[c][1] * d[1] + dr[c][2] * d[2]
+                        };
+                        out.push((i as u32, coef));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Reduced indices a nodal component can touch (state independent), for the sparsity pattern.
+    pub fn row_pattern(&self, node: usize, c: usize, out: &mut Vec<u32>) {
+        match self.comps[3 * node + c] {
+            Comp::Free(k) => out.push(k),
+            Comp::Presc(_) => {}
+            Comp::Lin(s, l) => out.extend(self.terms[s as usize..s as usize + l as usize].iter().map(|t| t.0)),
+            Comp::Rigid(b) => {
+                for k in 0..6 {
+                    if let BodyDof::Free(i) = self.body_dofs[b as usize][k] {
+                        out.push(i as u32);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Whether a nodal component is a rigid slave (and of which body).
+    pub fn rigid_body_of(&self, node: usize, c: usize) -> Option<usize> {
+        match self.comps[3 * node + c] {
+            Comp::Rigid(b) => Some(b as usize),
+            _ => None,
+        }
+    }
+
+    /// Whether a nodal component is held by a prescribed value.
+    pub fn is_prescribed(&self, node: usize, c: usize) -> bool {
+        matches!(self.comps[3 * node + c], Comp::Presc(_))
+    }
+}
+
+#[inline]
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rotation_derivatives_match_fd() {
+        for psi in [[0.0, 0.0, 0.0], [0.1, -0.3, 1.2], [0.0, 0.0, 2.5], [1e-4, 0.0, 0.0]] {
+            let kin = BodyKin::new([0.0; 3], psi);
+            // orthogonality
+            for i in 0..3 {
+                for j in 0..3 {
+                    let v: f64 = (0..3).map(|m| kin.r[m][i] * kin.r[m][j]).sum();
+                    assert!((v - if i == j { 1.0 } else { 0.0 }).abs() < 1e-14);
+                }
+            }
+            let h = 1e-6;
+            for a in 0..3 {
+                let mut pp = psi;
+                let mut pm = psi;
+                pp[a] += h;
+                pm[a] -= h;
+                let (kp, km) = (BodyKin::new([0.0; 3], pp), BodyKin::new([0.0; 3], pm));
+                for i in 0..3 {
+                    for j in 0..3 {
+                        assert!(((kp.r[i][j] - km.r[i][j]) / (2.0 * h) - kin.dr[a][i][j]).abs() < 1e-8);
+                        for b in 0..3 {
+                            let fd = (kp.dr[b][i][j] - km.dr[b][i][j]) / (2.0 * h);
+                            assert!((fd - kin.d2r[a][b][i][j]).abs() < 1e-7, "{psi:?} {a}{b}{i}{j}");
+                        }
+                    }
+                }
+            }
+        }
+        // rotation about z by φ
+        let kin = BodyKin::new([0.0; 3], [0.0, 0.0, 0.7]);
+        assert!((kin.r[0][0] - 0.7f64.cos()).abs() < 1e-15 && (kin.r[1][0] - 0.7f64.sin()).abs() < 1e-15);
+    }
+}

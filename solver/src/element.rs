@@ -1,0 +1,501 @@
+//! Solid hexahedral element for nearly incompressible finite-strain hyperelasticity.
+//!
+//! Total-Lagrangian, displacement-based energy with a *projected dilatation*:
+//!
+//!   E_e(u) = ∫ W_iso(Ī1) dV + ∫ U(θ) dV,   θ = Π_h J,
+//!
+//! where Π_h is the element-wise L²(reference) projection onto a discontinuous pressure space
+//! (`P1` = span{1, ξ, η, ζ}, `P0` = constants, `None` = no projection, θ = J). This is exactly the
+//! statically condensed three-field (u, p, θ) Hu–Washizu element of deal.II step-44 (Q2-DGP1-DGP1
+//! for `Hex27` + `P1`; Q1-P0 "mean dilatation" for `Hex8` + `P0`), written as a pure displacement
+//! energy: the discrete pressure is p̃ = Π_h U'(θ). The tangent is the exact Hessian of E_e, so
+//! it is symmetric.
+//!
+//! Kernels are plain functions of local data. `residual` is generic over the scalar type (`f64` or
+//! dual numbers) for shape/material derivatives; `tangent` is the `f64` Hessian.
+
+use crate::material::Hyperelastic;
+use crate::mesh::ElementKind;
+use crate::scalar::{det3, inv3, Scalar, M3};
+use crate::shape::HexRule;
+
+/// Discontinuous pressure/dilatation space of the mixed element.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum PressureSpace {
+    /// Pure displacement element (locks for nearly incompressible materials; for comparison only).
+    None,
+    /// Element-constant pressure (mean dilatation / Q1P0).
+    P0,
+    /// Linear discontinuous pressure (Q2/P1).
+    P1,
+}
+
+impl PressureSpace {
+    pub fn dim(self) -> usize {
+        match self {
+            PressureSpace::None => 0,
+            PressureSpace::P0 => 1,
+            PressureSpace::P1 => 4,
+        }
+    }
+    #[inline]
+    fn basis(self, xi: [f64; 3]) -> [f64; 4] {
+        [1.0, xi[0], xi[1], xi[2]]
+    }
+}
+
+/// An element formulation: node layout, pressure space and quadrature order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub struct Formulation {
+    pub kind: ElementKind,
+    pub pressure: PressureSpace,
+    pub ngauss: usize,
+}
+
+impl Formulation {
+    /// The recommended formulation for a node layout: Q2/P1 (Hex27), Q2s/P1 (Hex20), Q1/P0 (Hex8).
+    pub fn standard(kind: ElementKind) -> Self {
+        match kind {
+            ElementKind::Hex8 => Formulation { kind, pressure: PressureSpace::P0, ngauss: 2 },
+            _ => Formulation { kind, pressure: PressureSpace::P1, ngauss: 3 },
+        }
+    }
+    pub fn rule(&self) -> HexRule {
+        HexRule::new(self.kind, self.ngauss)
+    }
+}
+
+/// Why an element could not be evaluated.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum ElementError {
+    #[error("reference element {0} has a non-positive Jacobian")]
+    BadReference(usize),
+    #[error("element {0} inverted (det F <= 0 at a quadrature point)")]
+    Inverted(usize),
+    #[error("element {0} produced a non-finite value")]
+    NonFinite(usize),
+}
+
+/// Summary of one element evaluation.
+#[derive(Clone, Copy, Debug)]
+pub struct ElementInfo<D> {
+    pub energy: D,
+    /// Smallest det F over the quadrature points (and smallest projected θ).
+    pub min_det_f: f64,
+}
+
+struct QpData<D> {
+    g: Vec<[D; 3]>, // ∇_X N_a
+    f: M3<D>,
+    finv: M3<D>,
+    j: D,
+    wj0: D,
+    q: [f64; 4],
+}
+
+fn qp_data<D: Scalar>(
+    rule: &HexRule,
+    gp: usize,
+    x0: &[[D; 3]],
+    u: &[[D; 3]],
+    q: [f64; 4],
+) -> Result<QpData<D>, ElementError> {
+    let dn = &rule.dn[gp];
+    let nn = dn.len();
+    let mut jac: M3<D> = [[D::zero(); 3]; 3];
+    for a in 0..nn {
+        for i in 0..3 {
+            for jj in 0..3 {
+                jac[i][jj] += x0[a][i] * dn[a][jj];
+            }
+        }
+    }
+    let det0 = det3(&jac);
+    if !(det0.re() > 0.0) {
+        return Err(ElementError::BadReference(0));
+    }
+    let jinv = inv3(&jac, det0); // dξ/dX
+    let mut g = vec![[D::zero(); 3]; nn];
+    for a in 0..nn {
+        for cap in 0..3 {
+            g[a][cap] = jinv[0][cap] * dn[a][0] + jinv[1][cap] * dn[a][1] + jinv[2][cap] * dn[a][2];
+        }
+    }
+    let mut f: M3<D> = [[D::zero(); 3]; 3];
+    for i in 0..3 {
+        f[i][i] = D::one();
+    }
+    for a in 0..nn {
+        for i in 0..3 {
+            for cap in 0..3 {
+                f[i][cap] += u[a][i] * g[a][cap];
+            }
+        }
+    }
+    let j = det3(&f);
+    if !(j.re() > 0.0) {
+        return Err(ElementError::Inverted(0));
+    }
+    let finv = inv3(&f, j);
+    Ok(QpData { g, f, finv, j, wj0: det0 * rule.weights[gp], q })
+}
+
+/// Projection data: (θ at each qp, p̃ at each qp, M⁻¹ (np×np)).
+fn project<D: Scalar, M: Hyperelastic>(
+    ps: PressureSpace,
+    mat: &M,
+    params: &[D],
+    qp: &[QpData<D>],
+) -> Result<(Vec<D>, Vec<D>, Vec<D>), ElementError> {
+    let np = ps.dim();
+    if np == 0 {
+        let theta: Vec<D> = qp.iter().map(|d| d.j).collect();
+        let pt: Vec<D> = qp.iter().map(|d| mat.u_vol(params, d.j)[1]).collect();
+        return Ok((theta, pt, vec![]));
+    }
+    let mut m = vec![D::zero(); np * np];
+    let mut b = vec![D::zero(); np];
+    for d in qp {
+        for r in 0..np {
+            b[r] += d.j * d.wj0 * d.q[r];
+            for s in 0..np {
+                m[r * np + s] += d.wj0 * (d.q[r] * d.q[s]);
+            }
+        }
+    }
+    let minv = crate::scalar::small_spd_inverse(&m, np).ok_or(ElementError::BadReference(0))?;
+    let a: Vec<D> = (0..np).map(|r| (0..np).map(|s| minv[r * np + s] * b[s]).sum()).collect();
+    let theta: Vec<D> = qp.iter().map(|d| (0..np).map(|r| a[r] * d.q[r]).sum()).collect();
+    if theta.iter().any(|t| !(t.re() > 0.0)) {
+        return Err(ElementError::Inverted(0));
+    }
+    let mut rhs = vec![D::zero(); np];
+    for (d, t) in qp.iter().zip(&theta) {
+        let up = mat.u_vol(params, *t)[1];
+        for r in 0..np {
+            rhs[r] += up * d.wj0 * d.q[r];
+        }
+    }
+    let cc: Vec<D> = (0..np).map(|r| (0..np).map(|s| minv[r * np + s] * rhs[s]).sum()).collect();
+    let pt: Vec<D> = qp.iter().map(|d| (0..np).map(|r| cc[r] * d.q[r]).sum()).collect();
+    Ok((theta, pt, minv))
+}
+
+fn gather<D: Scalar>(
+    form: &Formulation,
+    rule: &HexRule,
+    x0: &[[D; 3]],
+    u: &[[D; 3]],
+) -> Result<Vec<QpData<D>>, ElementError> {
+    (0..rule.weights.len())
+        .map(|gp| qp_data(rule, gp, x0, u, form.pressure.basis(rule.points[gp])))
+        .collect()
+}
+
+/// Element energy and internal force vector f = ∂E/∂u (3·nn, node-major), generic over the scalar.
+pub fn residual<D: Scalar, M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[D],
+    x0: &[[D; 3]],
+    u: &[[D; 3]],
+    f_out: &mut [D],
+) -> Result<ElementInfo<D>, ElementError> {
+    let nn = x0.len();
+    let qp = gather(form, rule, x0, u)?;
+    let (theta, pt, _) = project(form.pressure, mat, params, &qp)?;
+    for v in f_out.iter_mut() {
+        *v = D::zero();
+    }
+    let mut energy = D::zero();
+    let mut min_j = f64::INFINITY;
+    for (gi, d) in qp.iter().enumerate() {
+        min_j = min_j.min(d.j.re()).min(theta[gi].re());
+        let i1: D = (0..3).map(|i| (0..3).map(|k| d.f[i][k] * d.f[i][k]).sum::<D>()).sum();
+        let jm23 = d.j.powf(-2.0 / 3.0);
+        let [w, w1, _] = mat.w_iso(params, jm23 * i1);
+        let uv = mat.u_vol(params, theta[gi])[0];
+        energy += (w + uv) * d.wj0;
+        // P_iso = W1 J^(-2/3) (2F − 2/3 I1 F^-T);  volumetric: p̃ J F^-T
+        let mut p: M3<D> = [[D::zero(); 3]; 3];
+        for i in 0..3 {
+            for cap in 0..3 {
+                p[i][cap] = w1 * jm23 * (d.f[i][cap] * 2.0 - i1 * d.finv[cap][i] * (2.0 / 3.0))
+                    + pt[gi] * d.j * d.finv[cap][i];
+            }
+        }
+        for a in 0..nn {
+            let ga = d.g[a];
+            for i in 0..3 {
+                f_out[3 * a + i] += (p[i][0] * ga[0] + p[i][1] * ga[1] + p[i][2] * ga[2]) * d.wj0;
+            }
+        }
+    }
+    if !energy.re().is_finite() || f_out.iter().any(|v| !v.re().is_finite()) {
+        return Err(ElementError::NonFinite(0));
+    }
+    Ok(ElementInfo { energy, min_det_f: min_j })
+}
+
+/// Element energy, internal force f (3nn) and tangent K (3nn × 3nn, row-major, symmetric).
+pub fn tangent<M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[f64],
+    x0: &[[f64; 3]],
+    u: &[[f64; 3]],
+    f_out: &mut [f64],
+    k_out: &mut [f64],
+) -> Result<ElementInfo<f64>, ElementError> {
+    let nn = x0.len();
+    let nd = 3 * nn;
+    let qp = gather(form, rule, x0, u)?;
+    let (theta, pt, minv) = project(form.pressure, mat, params, &qp)?;
+    f_out.iter_mut().for_each(|v| *v = 0.0);
+    k_out.iter_mut().for_each(|v| *v = 0.0);
+    let np = form.pressure.dim();
+    let mut bv = vec![0.0; np * nd];
+    let mut hmat = vec![0.0; np * np];
+    let mut energy = 0.0;
+    let mut min_j = f64::INFINITY;
+    let mut sg = vec![[0.0f64; 3]; nn]; // spatial gradients g_a = F^-T G_a
+    let mut ha = vec![0.0f64; 27];
+    for (gi, d) in qp.iter().enumerate() {
+        min_j = min_j.min(d.j).min(theta[gi]);
+        let fm = &d.f;
+        let fi = &d.finv;
+        let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
+        let jm23 = d.j.powf(-2.0 / 3.0);
+        let i1b = jm23 * i1;
+        let [w, w1, w2] = mat.w_iso(params, i1b);
+        let [uv, _, upp] = mat.u_vol(params, theta[gi]);
+        energy += (w + uv) * d.wj0;
+        // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
+        let mut gb = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for cap in 0..3 {
+                gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
+            }
+        }
+        let mut a = [[0.0f64; 9]; 9];
+        for i in 0..3 {
+            for cj in 0..3 {
+                for k in 0..3 {
+                    for cl in 0..3 {
+                        let dik = if i == k && cj == cl { 2.0 } else { 0.0 };
+                        let d2 = jm23
+                            * (dik - (4.0 / 3.0) * (fm[i][cj] * fi[cl][k] + fm[k][cl] * fi[cj][i])
+                                + (4.0 / 9.0) * i1 * fi[cj][i] * fi[cl][k]
+                                + (2.0 / 3.0) * i1 * fi[cj][k] * fi[cl][i]);
+                        a[3 * i + cj][3 * k + cl] = w2 * gb[i][cj] * gb[k][cl] + w1 * d2;
+                    }
+                }
+            }
+        }
+        let wj0 = d.wj0;
+        let pj = pt[gi] * d.j;
+        for b in 0..nn {
+            let gbv = d.g[b];
+            for i in 0..3 {
+                sg[b][i] = fi[0][i] * gbv[0] + fi[1][i] * gbv[1] + fi[2][i] * gbv[2];
+            }
+        }
+        // residual
+        for a_ in 0..nn {
+            let ga = d.g[a_];
+            for i in 0..3 {
+                let piso = w1 * (gb[i][0] * ga[0] + gb[i][1] * ga[1] + gb[i][2] * ga[2]);
+                f_out[3 * a_ + i] += (piso + pj * sg[a_][i]) * wj0;
+            }
+        }
+        // material + geometric isochoric tangent
+        for a_ in 0..nn {
+            let ga = d.g[a_];
+            for i in 0..3 {
+                for k in 0..3 {
+                    for cl in 0..3 {
+                        ha[9 * i + 3 * k + cl] = (ga[0] * a[3 * i][3 * k + cl]
+                            + ga[1] * a[3 * i + 1][3 * k + cl]
+                            + ga[2] * a[3 * i + 2][3 * k + cl])
+                            * wj0;
+                    }
+                }
+            }
+            for b in 0..nn {
+                let gbv = d.g[b];
+                let sa = sg[a_];
+                let sb = sg[b];
+                for i in 0..3 {
+                    let row = (3 * a_ + i) * nd + 3 * b;
+                    for k in 0..3 {
+                        let h = &ha[9 * i + 3 * k..9 * i + 3 * k + 3];
+                        let mut v = h[0] * gbv[0] + h[1] * gbv[1] + h[2] * gbv[2];
+                        // volumetric geometric term p̃ J (g_a⊗g_b − g_b⊗g_a)
+                        v += pj * (sa[i] * sb[k] - sb[i] * sa[k]) * wj0;
+                        if np == 0 {
+                            v += upp * d.j * d.j * sa[i] * sb[k] * wj0;
+                        }
+                        k_out[row + k] += v;
+                    }
+                }
+            }
+        }
+        if np > 0 {
+            for r in 0..np {
+                for b in 0..nn {
+                    for i in 0..3 {
+                        bv[r * nd + 3 * b + i] += d.q[r] * d.j * sg[b][i] * wj0;
+                    }
+                }
+                for s in 0..np {
+                    hmat[r * np + s] += upp * d.q[r] * d.q[s] * wj0;
+                }
+            }
+        }
+    }
+    if np > 0 {
+        // K += Bvᵀ (M⁻¹ H M⁻¹) Bv
+        let mut c = vec![0.0; np * np];
+        for r in 0..np {
+            for s in 0..np {
+                let mut v = 0.0;
+                for t in 0..np {
+                    for w_ in 0..np {
+                        v += minv[r * np + t] * hmat[t * np + w_] * minv[w_ * np + s];
+                    }
+                }
+                c[r * np + s] = v;
+            }
+        }
+        // cb = C · Bv  (np × nd)
+        let mut cb = vec![0.0; np * nd];
+        for r in 0..np {
+            for s in 0..np {
+                let crs = c[r * np + s];
+                for col in 0..nd {
+                    cb[r * nd + col] += crs * bv[s * nd + col];
+                }
+            }
+        }
+        for row in 0..nd {
+            for r in 0..np {
+                let brow = bv[r * nd + row];
+                if brow != 0.0 {
+                    let kr = &mut k_out[row * nd..(row + 1) * nd];
+                    let cbr = &cb[r * nd..(r + 1) * nd];
+                    for col in 0..nd {
+                        kr[col] += brow * cbr[col];
+                    }
+                }
+            }
+        }
+    }
+    if !energy.is_finite() || f_out.iter().any(|v| !v.is_finite()) || k_out.iter().any(|v| !v.is_finite()) {
+        return Err(ElementError::NonFinite(0));
+    }
+    Ok(ElementInfo { energy, min_det_f: min_j })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::{Material, NeoHookean};
+    use crate::mesh::HEX27_NATURAL;
+
+    fn distorted_element(kind: ElementKind) -> Vec<[f64; 3]> {
+        kind.natural_coords()
+            .iter()
+            .map(|c| {
+                let (x, y, z) = (c[0] as f64, c[1] as f64, c[2] as f64);
+                [1.0 + x + 0.1 * y * z + 0.05 * x * x, 2.0 + 0.8 * y + 0.1 * x, 0.5 * z + 0.07 * x * y]
+            })
+            .collect()
+    }
+
+    fn disp(x0: &[[f64; 3]], s: f64) -> Vec<[f64; 3]> {
+        x0.iter()
+            .map(|p| [s * (0.2 * p[1] + 0.1 * p[0] * p[2]), s * (-0.15 * p[0] + 0.05 * p[2] * p[2]), s * (0.12 * p[0] * p[1])])
+            .collect()
+    }
+
+    #[test]
+    fn tangent_matches_fd_of_residual_and_residual_matches_fd_of_energy() {
+        let _ = HEX27_NATURAL;
+        let mat: Material = NeoHookean::new(0.34, 0.34 * 100.0).unwrap().into();
+        let params = mat.params();
+        for form in [
+            Formulation::standard(ElementKind::Hex27),
+            Formulation::standard(ElementKind::Hex8),
+            Formulation::standard(ElementKind::Hex20),
+            Formulation { kind: ElementKind::Hex8, pressure: PressureSpace::None, ngauss: 2 },
+            Formulation { kind: ElementKind::Hex27, pressure: PressureSpace::P0, ngauss: 3 },
+        ] {
+            let rule = form.rule();
+            let x0 = distorted_element(form.kind);
+            let u = disp(&x0, 1.0);
+            let nd = 3 * x0.len();
+            let mut f = vec![0.0; nd];
+            let mut k = vec![0.0; nd * nd];
+            let info = tangent(&form, &rule, &mat, &params, &x0, &u, &mut f, &mut k).unwrap();
+            let mut fr = vec![0.0; nd];
+            let info2 = residual(&form, &rule, &mat, &params, &x0, &u, &mut fr).unwrap();
+            assert!((info.energy - info2.energy).abs() < 1e-12 * info.energy.abs().max(1.0));
+            for i in 0..nd {
+                assert!((f[i] - fr[i]).abs() < 1e-10 * (1.0 + f[i].abs()), "{form:?}");
+            }
+            let h = 1e-6;
+            let kmax = k.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let fmax = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for col in 0..nd {
+                let mut up = u.clone();
+                let mut um = u.clone();
+                up[col / 3][col % 3] += h;
+                um[col / 3][col % 3] -= h;
+                let mut fp = vec![0.0; nd];
+                let mut fm = vec![0.0; nd];
+                let ep = residual(&form, &rule, &mat, &params, &x0, &up, &mut fp).unwrap().energy;
+                let em = residual(&form, &rule, &mat, &params, &x0, &um, &mut fm).unwrap().energy;
+                let fd_f = (ep - em) / (2.0 * h);
+                assert!((fd_f - f[col]).abs() < 1e-6 * fmax, "{form:?} f[{col}] {} vs {}", fd_f, f[col]);
+                for row in 0..nd {
+                    let fd = (fp[row] - fm[row]) / (2.0 * h);
+                    let an = k[row * nd + col];
+                    assert!((fd - an).abs() < 1e-6 * kmax, "{form:?} K[{row},{col}] fd {fd} an {an}");
+                }
+            }
+            for r in 0..nd {
+                for cc in 0..nd {
+                    assert!((k[r * nd + cc] - k[cc * nd + r]).abs() < 1e-10 * kmax);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn rigid_rotation_is_stress_free() {
+        let mat: Material = NeoHookean::new(0.34, 340.0).unwrap().into();
+        let params = mat.params();
+        let form = Formulation::standard(ElementKind::Hex27);
+        let rule = form.rule();
+        let x0 = distorted_element(form.kind);
+        let (s, co) = (0.9f64.sin(), 0.9f64.cos());
+        let u: Vec<[f64; 3]> = x0.iter().map(|p| [co * p[0] - s * p[1] - p[0] + 1.0, s * p[0] + co * p[1] - p[1] - 2.0, 0.3]).collect();
+        let mut f = vec![0.0; 81];
+        let info = residual(&form, &rule, &mat, &params, &x0, &u, &mut f).unwrap();
+        assert!(info.energy.abs() < 1e-12);
+        assert!(f.iter().all(|v| v.abs() < 1e-12));
+    }
+
+    #[test]
+    fn inverted_element_is_an_error() {
+        let mat: Material = NeoHookean::new(0.34, 340.0).unwrap().into();
+        let form = Formulation::standard(ElementKind::Hex8);
+        let x0 = distorted_element(form.kind);
+        let u: Vec<[f64; 3]> = x0.iter().map(|p| [-2.0 * p[0], 0.0, 0.0]).collect();
+        let mut f = vec![0.0; 24];
+        let r = residual(&form, &form.rule(), &mat, &mat.params(), &x0, &u, &mut f);
+        assert!(matches!(r, Err(ElementError::Inverted(_))));
+    }
+}

@@ -1,0 +1,526 @@
+//! A model (mesh + formulation + material + constraints + cavity pressure), its sparse assembly in
+//! the reduced unknowns, and the linear solves.
+
+use crate::dofmap::{sub, BodyKin, Constraints, DofMap};
+use crate::element::{self, ElementError, Formulation};
+use crate::material::{Hyperelastic, Material};
+use crate::mesh::{Face, Mesh};
+use crate::shape::HexRule;
+use crate::surface::{self, Cavity};
+use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::linalg::solvers::Solve;
+use faer::{Mat, Side};
+use rayon::prelude::*;
+
+/// Errors building a model.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error(transparent)]
+    Constraint(#[from] crate::dofmap::ConstraintError),
+    #[error("mesh: {0}")]
+    Mesh(String),
+    #[error("sparse factorisation setup failed: {0}")]
+    Symbolic(String),
+}
+
+/// Current values of the loads: cavity pressure and every prescribed value (nodal slots, then
+/// rigid-body slots, in `DofMap::presc_targets` order).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Loads {
+    pub pressure: f64,
+    pub presc: Vec<f64>,
+    /// External force on each rigid body's reference point (dead load).
+    pub body_forces: Vec<[f64; 3]>,
+}
+
+impl Loads {
+    pub fn zero(model: &Model) -> Self {
+        Loads {
+            pressure: 0.0,
+            presc: vec![0.0; model.dofs.presc_targets.len()],
+            body_forces: vec![[0.0; 3]; model.dofs.bodies.len()],
+        }
+    }
+    /// Linear interpolation a + t (b − a).
+    pub fn lerp(a: &Loads, b: &Loads, t: f64) -> Loads {
+        Loads {
+            pressure: a.pressure + t * (b.pressure - a.pressure),
+            presc: a.presc.iter().zip(&b.presc).map(|(x, y)| x + t * (y - x)).collect(),
+            body_forces: a
+                .body_forces
+                .iter()
+                .zip(&b.body_forces)
+                .map(|(x, y)| [x[0] + t * (y[0] - x[0]), x[1] + t * (y[1] - x[1]), x[2] + t * (y[2] - x[2])])
+                .collect(),
+        }
+    }
+}
+
+/// Upper-triangular CSC pattern of the reduced tangent.
+#[derive(Clone, Debug)]
+struct Pattern {
+    n: usize,
+    col_ptr: Vec<u32>,
+    row_idx: Vec<u32>,
+}
+
+impl Pattern {
+    #[inline]
+    fn slot(&self, r: u32, c: u32) -> usize {
+        let (r, c) = if r <= c { (r, c) } else { (c, r) };
+        let s = self.col_ptr[c as usize] as usize;
+        let e = self.col_ptr[c as usize + 1] as usize;
+        s + self.row_idx[s..e].binary_search(&r).expect("entry in pattern")
+    }
+}
+
+/// The result of one assembly.
+#[derive(Clone, Debug)]
+pub struct Assembled {
+    /// Reduced residual r = (∂u/∂q)ᵀ (f_int − f_ext).
+    pub r: Vec<f64>,
+    /// Reduced tangent values (upper CSC in the model's pattern), if requested.
+    pub k: Option<Vec<f64>>,
+    /// Full nodal residual f_int − f_ext (3 per node): the reaction forces at constrained DOFs.
+    pub r_full: Vec<f64>,
+    /// Norm of the internal force vector (scale for convergence tests).
+    pub f_scale: f64,
+    /// Strain energy and cavity volume (of the modelled part).
+    pub energy: f64,
+    pub volume: f64,
+    pub min_det_f: f64,
+    pub u: Vec<[f64; 3]>,
+    pub kin: Vec<BodyKin>,
+}
+
+/// Failures of a linear solve.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum SolveError {
+    #[error("tangent not positive definite")]
+    NotPositiveDefinite,
+    #[error("tangent singular")]
+    Singular,
+    #[error("non-finite value in the solution")]
+    NonFinite,
+}
+
+/// A finite element model.
+pub struct Model {
+    pub mesh: Mesh,
+    pub form: Formulation,
+    rule: HexRule,
+    pub material: Material,
+    /// Overrides of the material parameters (for parameter derivatives); None = material's own.
+    pub params: Vec<f64>,
+    pub dofs: DofMap,
+    pub cavity: Option<Cavity>,
+    pattern: Pattern,
+    symbolic: SymbolicLlt<u32>,
+    symbolic_lu: std::sync::OnceLock<Option<(SymbolicSparseColMat<u32>, Vec<usize>, SymbolicLu<u32>)>>,
+    /// Elements per parallel work unit (fixed: results do not depend on the thread count).
+    pub chunk: usize,
+}
+
+impl Model {
+    pub fn new(
+        mesh: Mesh,
+        form: Formulation,
+        material: Material,
+        constraints: &Constraints,
+        cavity_faces: Option<&[Face]>,
+    ) -> Result<Model, ModelError> {
+        if form.kind != mesh.kind {
+            return Err(ModelError::Mesh(format!("formulation {:?} on a {:?} mesh", form.kind, mesh.kind)));
+        }
+        let dofs = DofMap::build(mesh.n_nodes(), constraints)?;
+        let cavity = cavity_faces.map(|f| Cavity::new(&mesh, f));
+        let pattern = build_pattern(&mesh, &dofs);
+        let sym = SymbolicSparseColMat::<u32>::new_checked(
+            pattern.n,
+            pattern.n,
+            pattern.col_ptr.clone(),
+            None,
+            pattern.row_idx.clone(),
+        );
+        let symbolic = SymbolicLlt::try_new(sym.as_ref(), Side::Upper).map_err(|e| ModelError::Symbolic(format!("{e:?}")))?;
+        let rule = form.rule();
+        let params = material.params();
+        Ok(Model {
+            mesh,
+            form,
+            rule,
+            material,
+            params,
+            dofs,
+            cavity,
+            pattern,
+            symbolic,
+            symbolic_lu: std::sync::OnceLock::new(),
+            chunk: 32,
+        })
+    }
+
+    pub fn n_reduced(&self) -> usize {
+        self.dofs.n_reduced()
+    }
+
+    pub fn nnz(&self) -> usize {
+        self.pattern.row_idx.len()
+    }
+
+    /// Assemble residual (and tangent) at reduced state q under loads.
+    pub fn assemble(&self, q: &[f64], loads: &Loads, want_k: bool) -> Result<Assembled, ElementError> {
+        let x0 = &self.mesh.nodes;
+        let kin = self.dofs.body_kinematics(q, &loads.presc);
+        let u = self.dofs.expand(x0, q, &loads.presc, &kin);
+        let nn = self.mesh.kind.nodes_per_element();
+        let nd = 3 * nn;
+        let ne = self.mesh.n_elements();
+        let mut r_full = vec![0.0; 3 * x0.len()];
+        let mut kv = if want_k { Some(vec![0.0; self.pattern.row_idx.len()]) } else { None };
+        let mut energy = 0.0;
+        let mut min_det_f = f64::INFINITY;
+        let mut f_int_sq = 0.0;
+        // element loop: parallel per chunk, scatter serially in element order (deterministic)
+        let chunks: Vec<(usize, usize)> = (0..ne).step_by(self.chunk).map(|s| (s, (s + self.chunk).min(ne))).collect();
+        let wave = 4 * rayon::current_num_threads().max(1);
+        let mut rowbuf = Vec::with_capacity(16);
+        let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); nd];
+        for wave_chunks in chunks.chunks(wave) {
+            let results: Vec<Result<Vec<(f64, f64, Vec<f64>, Vec<f64>)>, ElementError>> = wave_chunks
+                .par_iter()
+                .map(|&(s, e)| {
+                    let mut out = Vec::with_capacity(e - s);
+                    for el in s..e {
+                        let conn = self.mesh.element(el);
+                        let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
+                        let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
+                        let mut f = vec![0.0; nd];
+                        let info = if want_k {
+                            let mut k = vec![0.0; nd * nd];
+                            let info = element::tangent(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, &mut f, &mut k)
+                                .map_err(|e| relabel(e, el))?;
+                            out.push((info.energy, info.min_det_f, f, k));
+                            continue;
+                        } else {
+                            element::residual(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, &mut f)
+                                .map_err(|e| relabel(e, el))?
+                        };
+                        out.push((info.energy, info.min_det_f, f, Vec::new()));
+                    }
+                    Ok(out)
+                })
+                .collect();
+            for (ci, res) in results.into_iter().enumerate() {
+                let res = res?;
+                let start = wave_chunks[ci].0;
+                for (off, (en, mj, f, k)) in res.into_iter().enumerate() {
+                    let el = start + off;
+                    energy += en;
+                    min_det_f = min_det_f.min(mj);
+                    let conn = self.mesh.element(el);
+                    for (a, &n) in conn.iter().enumerate() {
+                        for c in 0..3 {
+                            r_full[3 * n + c] += f[3 * a + c];
+                        }
+                    }
+                    if let Some(kv) = kv.as_mut() {
+                        self.fill_rows(conn, &kin, &mut rows, &mut rowbuf);
+                        self.scatter(&rows, &k, kv);
+                    }
+                }
+            }
+        }
+        f_int_sq += r_full.iter().map(|v| v * v).sum::<f64>();
+        // cavity pressure: −p ∂V/∂x, tangent −p ∂²V/∂x²
+        let mut volume = 0.0;
+        if let Some(cav) = &self.cavity {
+            let p = loads.pressure;
+            let xcur: Vec<[f64; 3]> = x0.iter().zip(&u).map(|(a, b)| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]).collect();
+            let mut items: Vec<&[usize]> = cav.face_nodes.iter().map(|v| v.as_slice()).collect();
+            let nfaces = items.len();
+            items.extend(cav.edges.iter().map(|e| e.0.as_slice()));
+            for (idx, nodes) in items.into_iter().enumerate() {
+                let xs: Vec<[f64; 3]> = nodes.iter().map(|&n| xcur[n]).collect();
+                let m = 3 * xs.len();
+                let mut g = vec![0.0; m];
+                let is_face = idx < nfaces;
+                volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
+                if p != 0.0 {
+                    for (a, &n) in nodes.iter().enumerate() {
+                        for c in 0..3 {
+                            r_full[3 * n + c] -= p * g[3 * a + c];
+                        }
+                    }
+                    if let Some(kv) = kv.as_mut() {
+                        let mut h = vec![0.0; m * m];
+                        if is_face {
+                            surface::face_volume_hessian(&cav.rule, &xs, &mut h);
+                        } else {
+                            surface::edge_volume_hessian(&xs, &mut h);
+                        }
+                        h.iter_mut().for_each(|v| *v *= -p);
+                        let mut rws: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
+                        self.fill_rows(nodes, &kin, &mut rws, &mut rowbuf);
+                        self.scatter(&rws, &h, kv);
+                    }
+                }
+            }
+        }
+        // reduce the residual
+        let nr = self.n_reduced();
+        let mut r = vec![0.0; nr];
+        for n in 0..x0.len() {
+            for c in 0..3 {
+                let v = r_full[3 * n + c];
+                if v == 0.0 {
+                    continue;
+                }
+                rowbuf.clear();
+                self.dofs.row(x0, &kin, n, c, &mut rowbuf);
+                for &(k, cf) in &rowbuf {
+                    r[k as usize] += cf * v;
+                }
+            }
+        }
+        // dead forces on rigid-body reference points
+        for (b, fb) in loads.body_forces.iter().enumerate() {
+            for k in 0..3 {
+                if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][k] {
+                    r[i] -= fb[k];
+                }
+            }
+        }
+        // second-order rigid rotation term Σ R_i ∂²u_i/∂ψa∂ψb
+        if let Some(kv) = kv.as_mut() {
+            for (b, body) in self.dofs.bodies.iter().enumerate() {
+                let mut hb = [[0.0; 3]; 3];
+                for &n in &body.nodes {
+                    let d = sub(x0[n], body.reference);
+                    for c in 0..3 {
+                        if !body.mask[c] {
+                            continue;
+                        }
+                        let rv = r_full[3 * n + c];
+                        for a in 0..3 {
+                            for bb in 0..3 {
+                                let m = &kin[b].d2r[a][bb][c];
+                                hb[a][bb] += rv * (m[0] * d[0] + m[1] * d[1] + m[2] * d[2]);
+                            }
+                        }
+                    }
+                }
+                for a in 0..3 {
+                    for bb in a..3 {
+                        if let (crate::dofmap::BodyDof::Free(i), crate::dofmap::BodyDof::Free(j)) =
+                            (self.dofs.body_dofs[b][3 + a], self.dofs.body_dofs[b][3 + bb])
+                        {
+                            kv[self.pattern.slot(i as u32, j as u32)] += hb[a][bb];
+                        }
+                    }
+                }
+            }
+        }
+        Ok(Assembled {
+            r,
+            k: kv,
+            r_full,
+            f_scale: f_int_sq.sqrt(),
+            energy,
+            volume,
+            min_det_f,
+            u,
+            kin,
+        })
+    }
+
+    fn fill_rows(&self, nodes: &[usize], kin: &[BodyKin], rows: &mut Vec<Vec<(u32, f64)>>, _buf: &mut Vec<(u32, f64)>) {
+        let x0 = &self.mesh.nodes;
+        rows.resize(3 * nodes.len(), Vec::new());
+        for (a, &n) in nodes.iter().enumerate() {
+            for c in 0..3 {
+                let row = &mut rows[3 * a + c];
+                row.clear();
+                self.dofs.row(x0, kin, n, c, row);
+            }
+        }
+    }
+
+    /// K_red[k,l] += Σ c_i c_j K_e[i][j] over the rows of the local DOFs (upper triangle only).
+    fn scatter(&self, rows: &[Vec<(u32, f64)>], ke: &[f64], kv: &mut [f64]) {
+        let nd = rows.len();
+        for i in 0..nd {
+            let ri = &rows[i];
+            if ri.is_empty() {
+                continue;
+            }
+            for j in 0..nd {
+                let rj = &rows[j];
+                let v = ke[i * nd + j];
+                if v == 0.0 {
+                    continue;
+                }
+                for &(k, ck) in ri {
+                    for &(l, cl) in rj {
+                        if k <= l {
+                            kv[self.pattern.slot(k, l)] += ck * cl * v;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The reduced tangent as a faer matrix (upper triangle stored).
+    pub fn matrix(&self, values: Vec<f64>) -> SparseColMat<u32, f64> {
+        let sym = SymbolicSparseColMat::<u32>::new_checked(
+            self.pattern.n,
+            self.pattern.n,
+            self.pattern.col_ptr.clone(),
+            None,
+            self.pattern.row_idx.clone(),
+        );
+        SparseColMat::new(sym, values)
+    }
+
+    /// Cholesky factorisation with the stored symbolic analysis. Fails if not positive definite.
+    pub fn factor(&self, values: &[f64]) -> Result<Factor, SolveError> {
+        let a = self.matrix(values.to_vec());
+        match Llt::try_new_with_symbolic(self.symbolic.clone(), a.as_ref(), Side::Upper) {
+            Ok(l) => Ok(Factor::Llt(l)),
+            Err(_) => Err(SolveError::NotPositiveDefinite),
+        }
+    }
+
+    /// LU factorisation of the (symmetric, possibly indefinite) tangent.
+    pub fn factor_lu(&self, values: &[f64]) -> Result<Factor, SolveError> {
+        let lu_sym = self.symbolic_lu.get_or_init(|| {
+            // full pattern: mirror the upper triangle
+            let n = self.pattern.n;
+            let mut cols: Vec<Vec<(u32, usize)>> = vec![Vec::new(); n];
+            for c in 0..n {
+                for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
+                    let r = self.pattern.row_idx[s] as usize;
+                    cols[c].push((r as u32, s));
+                    if r != c {
+                        cols[r].push((c as u32, s));
+                    }
+                }
+            }
+            let mut col_ptr = vec![0u32];
+            let mut row_idx = Vec::new();
+            let mut src = Vec::new();
+            for col in cols.iter_mut() {
+                col.sort_by_key(|x| x.0);
+                for &(r, s) in col.iter() {
+                    row_idx.push(r);
+                    src.push(s);
+                }
+                col_ptr.push(row_idx.len() as u32);
+            }
+            let sym = SymbolicSparseColMat::<u32>::new_checked(n, n, col_ptr, None, row_idx);
+            let lu = SymbolicLu::try_new(sym.as_ref()).ok()?;
+            Some((sym, src, lu))
+        });
+        let (sym, src, lu) = lu_sym.as_ref().ok_or(SolveError::Singular)?;
+        let vals: Vec<f64> = src.iter().map(|&s| values[s]).collect();
+        let a = SparseColMat::new(sym.clone(), vals);
+        Lu::try_new_with_symbolic(lu.clone(), a.as_ref()).map(Factor::Lu).map_err(|_| SolveError::Singular)
+    }
+}
+
+/// A factorised tangent.
+pub enum Factor {
+    Llt(Llt<u32, f64>),
+    Lu(Lu<u32, f64>),
+}
+
+impl Factor {
+    pub fn solve(&self, b: &[f64]) -> Result<Vec<f64>, SolveError> {
+        let mut m = Mat::<f64>::from_fn(b.len(), 1, |i, _| b[i]);
+        match self {
+            Factor::Llt(l) => l.solve_in_place(m.as_mut()),
+            Factor::Lu(l) => l.solve_in_place(m.as_mut()),
+        }
+        let x: Vec<f64> = (0..b.len()).map(|i| m[(i, 0)]).collect();
+        if x.iter().all(|v| v.is_finite()) {
+            Ok(x)
+        } else {
+            Err(SolveError::NonFinite)
+        }
+    }
+}
+
+fn relabel(e: ElementError, el: usize) -> ElementError {
+    match e {
+        ElementError::BadReference(_) => ElementError::BadReference(el),
+        ElementError::Inverted(_) => ElementError::Inverted(el),
+        ElementError::NonFinite(_) => ElementError::NonFinite(el),
+    }
+}
+
+fn build_pattern(mesh: &Mesh, dofs: &DofMap) -> Pattern {
+    let n = dofs.n_reduced();
+    let mut cols: Vec<Vec<u32>> = vec![Vec::new(); n];
+    let mut idx = Vec::new();
+    for e in 0..mesh.n_elements() {
+        idx.clear();
+        for &node in mesh.element(e) {
+            for c in 0..3 {
+                dofs.row_pattern(node, c, &mut idx);
+            }
+        }
+        idx.sort_unstable();
+        idx.dedup();
+        for (a, &k) in idx.iter().enumerate() {
+            for &l in &idx[a..] {
+                cols[l as usize].push(k);
+            }
+        }
+    }
+    for b in 0..dofs.bodies.len() {
+        let free: Vec<u32> = dofs.body_dofs[b]
+            .iter()
+            .filter_map(|d| if let crate::dofmap::BodyDof::Free(i) = d { Some(*i as u32) } else { None })
+            .collect();
+        for (a, &k) in free.iter().enumerate() {
+            for &l in &free[a..] {
+                cols[l.max(k) as usize].push(k.min(l));
+            }
+        }
+    }
+    let mut col_ptr = vec![0u32];
+    let mut row_idx = Vec::new();
+    for (c, col) in cols.iter_mut().enumerate() {
+        col.push(c as u32); // diagonal always present
+        col.sort_unstable();
+        col.dedup();
+        row_idx.extend_from_slice(col);
+        col_ptr.push(row_idx.len() as u32);
+    }
+    Pattern { n, col_ptr, row_idx }
+}
+
+/// Moment about a point and force of the nodal reactions of a node set, in the current configuration.
+pub fn resultant(nodes: &[usize], x0: &[[f64; 3]], u: &[[f64; 3]], r_full: &[f64], about: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let mut f = [0.0; 3];
+    let mut m = [0.0; 3];
+    for &n in nodes {
+        let rv = [r_full[3 * n], r_full[3 * n + 1], r_full[3 * n + 2]];
+        let x = [x0[n][0] + u[n][0] - about[0], x0[n][1] + u[n][1] - about[1], x0[n][2] + u[n][2] - about[2]];
+        for i in 0..3 {
+            f[i] += rv[i];
+        }
+        let c = crate::scalar::cross(x, rv);
+        for i in 0..3 {
+            m[i] += c[i];
+        }
+    }
+    (f, m)
+}
+
+/// Strain-energy based checks use this helper: material parameters by name.
+pub fn material_param_names(m: &Material) -> Vec<&'static str> {
+    m.param_names()
+}

@@ -1,0 +1,327 @@
+//! Newton's method with line search, and the adaptive load stepper.
+//!
+//! Every loop is bounded; no NaN leaves the solver: a non-finite residual, an inverted element or
+//! a non-positive-definite tangent is a recorded failure with its cause, and the caller keeps the
+//! last converged state.
+
+use crate::element::ElementError;
+use crate::model::{Assembled, Factor, Loads, Model, SolveError};
+
+/// Newton options.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct NewtonOptions {
+    pub max_iter: usize,
+    /// Converged when ‖r‖ ≤ rtol · max(‖f_int‖, ‖f_ext‖) …
+    pub rtol: f64,
+    /// … or ‖r‖ ≤ atol (force units).
+    pub atol: f64,
+    pub line_search: bool,
+    /// Use LU instead of Cholesky (indefinite tangents, e.g. past a limit point under displacement control).
+    pub indefinite: bool,
+    /// Keep the residual norms of every iteration (for logs/tests).
+    pub log: bool,
+}
+
+impl Default for NewtonOptions {
+    fn default() -> Self {
+        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, line_search: true, indefinite: false, log: false }
+    }
+}
+
+/// Why a Newton solve failed.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum NewtonFailure {
+    NotPositiveDefinite,
+    Inversion,
+    Divergence,
+    IterationLimit,
+}
+
+/// Statistics of a converged Newton solve.
+#[derive(Clone, Debug, Default)]
+pub struct NewtonStats {
+    pub iterations: usize,
+    pub residual_norms: Vec<f64>,
+}
+
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+fn ext_scale(loads: &Loads, a: &Assembled) -> f64 {
+    let fb: f64 = loads.body_forces.iter().map(|f| f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sum::<f64>().sqrt();
+    a.f_scale.max(fb)
+}
+
+/// Solve r(q) = 0 at fixed loads starting from q (updated in place on success; on failure q is
+/// left at the last iterate only if `keep_on_failure`, otherwise restored).
+pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptions) -> Result<(NewtonStats, Assembled), NewtonFailure> {
+    let q_start = q.clone();
+    let fail = |q: &mut Vec<f64>, f: NewtonFailure| {
+        *q = q_start.clone();
+        Err(f)
+    };
+    let mut stats = NewtonStats::default();
+    let mut a = match model.assemble(q, loads, true) {
+        Ok(a) => a,
+        Err(e) => return fail(q, elem_fail(e)),
+    };
+    let mut last_norm = f64::INFINITY;
+    let mut growth = 0;
+    for it in 0..=opts.max_iter {
+        let rn = norm(&a.r);
+        if !rn.is_finite() {
+            return fail(q, NewtonFailure::Divergence);
+        }
+        if opts.log {
+            stats.residual_norms.push(rn);
+        }
+        let tol = (opts.rtol * ext_scale(loads, &a)).max(opts.atol);
+        if rn <= tol {
+            stats.iterations = it;
+            return Ok((stats, a));
+        }
+        if it == opts.max_iter {
+            break;
+        }
+        if rn > last_norm * 1e3 {
+            growth += 1;
+            if growth >= 2 {
+                return fail(q, NewtonFailure::Divergence);
+            }
+        }
+        last_norm = rn;
+        let kv = a.k.take().expect("tangent requested");
+        let fac = if opts.indefinite { model.factor_lu(&kv) } else { model.factor(&kv) };
+        let fac = match fac {
+            Ok(f) => f,
+            Err(SolveError::NotPositiveDefinite) => return fail(q, NewtonFailure::NotPositiveDefinite),
+            Err(_) => return fail(q, NewtonFailure::Divergence),
+        };
+        let neg: Vec<f64> = a.r.iter().map(|v| -v).collect();
+        let dq = match fac.solve(&neg) {
+            Ok(d) => d,
+            Err(_) => return fail(q, NewtonFailure::Divergence),
+        };
+        // line search on the energy slope g(s) = dq · r(q + s dq)
+        let g0: f64 = dq.iter().zip(&a.r).map(|(d, r)| d * r).sum();
+        let mut s = 1.0;
+        let mut accepted = None;
+        for _ls in 0..8 {
+            let qt: Vec<f64> = q.iter().zip(&dq).map(|(x, d)| x + s * d).collect();
+            match model.assemble(&qt, loads, true) {
+                Err(_) => {
+                    s *= 0.25;
+                    continue;
+                }
+                Ok(at) => {
+                    if !opts.line_search || opts.indefinite {
+                        accepted = Some((qt, at));
+                        break;
+                    }
+                    let gs: f64 = dq.iter().zip(&at.r).map(|(d, r)| d * r).sum();
+                    if !gs.is_finite() {
+                        s *= 0.25;
+                        continue;
+                    }
+                    if gs.abs() <= 0.8 * g0.abs() || s < 0.05 || g0 >= 0.0 {
+                        accepted = Some((qt, at));
+                        break;
+                    }
+                    // secant step towards the zero of g along the direction
+                    let snew = if gs > 0.0 { s * g0 / (g0 - gs) } else { s * 2.0 };
+                    let snew = snew.clamp(0.1 * s, 1.0);
+                    if (snew - s).abs() < 1e-3 {
+                        accepted = Some((qt, at));
+                        break;
+                    }
+                    s = snew;
+                }
+            }
+        }
+        match accepted {
+            Some((qt, at)) => {
+                *q = qt;
+                a = at;
+            }
+            None => return fail(q, NewtonFailure::Inversion),
+        }
+    }
+    fail(q, NewtonFailure::IterationLimit)
+}
+
+fn elem_fail(e: ElementError) -> NewtonFailure {
+    match e {
+        ElementError::Inverted(_) | ElementError::BadReference(_) => NewtonFailure::Inversion,
+        ElementError::NonFinite(_) => NewtonFailure::Divergence,
+    }
+}
+
+/// Load-stepping options. The path parameter t runs from 0 to 1.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct StepOptions {
+    pub initial: f64,
+    pub min: f64,
+    pub max: f64,
+    pub grow: f64,
+    pub cut: f64,
+    /// Grow the step when Newton converged in at most this many iterations.
+    pub easy_iterations: usize,
+    pub max_steps: usize,
+    pub newton: NewtonOptions,
+}
+
+impl Default for StepOptions {
+    fn default() -> Self {
+        StepOptions {
+            initial: 0.1,
+            min: 1e-4,
+            max: 0.25,
+            grow: 1.5,
+            cut: 0.5,
+            easy_iterations: 5,
+            max_steps: 1000,
+            newton: NewtonOptions::default(),
+        }
+    }
+}
+
+/// Why a load path ended before its end.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum FailureCause {
+    /// The tangent lost positive definiteness (pressure maximum / instability).
+    LimitPoint,
+    /// An element inverted (det F ≤ 0) at every step size tried.
+    Inversion,
+    /// Newton diverged at the smallest step.
+    Divergence,
+    /// Newton hit its iteration limit at the smallest step.
+    IterationLimit,
+    /// The step count limit was reached.
+    StepLimit,
+}
+
+impl FailureCause {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FailureCause::LimitPoint => "limit-point",
+            FailureCause::Inversion => "inversion",
+            FailureCause::Divergence => "divergence",
+            FailureCause::IterationLimit => "iteration-limit",
+            FailureCause::StepLimit => "step-limit",
+        }
+    }
+}
+
+/// Outcome of a load path.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PathStatus {
+    Completed,
+    /// The step callback asked to stop (e.g. a ballooning limit was exceeded).
+    Stopped(String),
+    Failed(FailureCause),
+}
+
+/// A converged step handed to the callback.
+pub struct StepInfo<'a> {
+    pub t: f64,
+    pub loads: &'a Loads,
+    pub q: &'a [f64],
+    pub assembled: &'a Assembled,
+    pub newton_iterations: usize,
+}
+
+/// Result of a load path: final status, last converged t, state and loads.
+pub struct PathResult {
+    pub status: PathStatus,
+    pub t: f64,
+    pub q: Vec<f64>,
+    pub loads: Loads,
+    pub steps: usize,
+    pub newton_iterations: usize,
+    pub factorizations: usize,
+}
+
+/// Follow loads(t) = lerp(from, to, t) from t = 0 (state q0 converged at `from`) to t = 1.
+/// The callback sees each converged step and returns `Some(reason)` to stop there.
+pub fn follow_path(
+    model: &Model,
+    q0: &[f64],
+    from: &Loads,
+    to: &Loads,
+    opts: &StepOptions,
+    mut on_step: impl FnMut(&StepInfo) -> Option<String>,
+) -> PathResult {
+    let mut q = q0.to_vec();
+    let mut t = 0.0;
+    let mut dt = opts.initial.min(opts.max).max(opts.min);
+    let mut steps = 0;
+    let mut total_it = 0;
+    let mut last_fail = None;
+    let mut loads = from.clone();
+    // tangent at the last converged state, for the predictor
+    let mut k_conv: Option<Vec<f64>> = model.assemble(&q, from, true).ok().and_then(|a| a.k);
+    while t < 1.0 - 1e-12 {
+        if steps >= opts.max_steps {
+            return PathResult { status: PathStatus::Failed(FailureCause::StepLimit), t, q, loads, steps, newton_iterations: total_it, factorizations: total_it };
+        }
+        let tn = (t + dt).min(1.0);
+        let trial = Loads::lerp(from, to, tn);
+        let mut qn = q.clone();
+        // predictor: q − K(q_conv)⁻¹ r(q_conv; loads(t + dt)) — linear response to the increment
+        if let Some(kc) = &k_conv {
+            if let (Ok(f), Ok(a)) = (model.factor(kc), model.assemble(&q, &trial, false)) {
+                if let Ok(dq) = f.solve(&a.r) {
+                    let qp: Vec<f64> = q.iter().zip(&dq).map(|(x, d)| x - d).collect();
+                    if model.assemble(&qp, &trial, false).is_ok() {
+                        qn = qp;
+                    }
+                }
+            }
+        }
+        match newton(model, &mut qn, &trial, &opts.newton) {
+            Ok((stats, a)) => {
+                steps += 1;
+                k_conv = a.k.clone();
+                total_it += stats.iterations;
+                t = tn;
+                q = qn;
+                loads = trial;
+                last_fail = None;
+                let info = StepInfo { t, loads: &loads, q: &q, assembled: &a, newton_iterations: stats.iterations };
+                if let Some(reason) = on_step(&info) {
+                    return PathResult { status: PathStatus::Stopped(reason), t, q, loads, steps, newton_iterations: total_it, factorizations: total_it };
+                }
+                if stats.iterations <= opts.easy_iterations {
+                    dt = (dt * opts.grow).min(opts.max);
+                }
+            }
+            Err(f) => {
+                total_it += opts.newton.max_iter.min(3);
+                last_fail = Some(f);
+                if dt <= opts.min * (1.0 + 1e-9) {
+                    break;
+                }
+                dt = (dt * opts.cut).max(opts.min);
+            }
+        }
+    }
+    let status = match last_fail {
+        None => PathStatus::Completed,
+        Some(f) => PathStatus::Failed(match f {
+            NewtonFailure::NotPositiveDefinite => FailureCause::LimitPoint,
+            NewtonFailure::Inversion => FailureCause::Inversion,
+            NewtonFailure::Divergence => FailureCause::Divergence,
+            NewtonFailure::IterationLimit => FailureCause::IterationLimit,
+        }),
+    };
+    PathResult { status, t, q, loads, steps, newton_iterations: total_it, factorizations: total_it }
+}
+
+/// Convenience: factor the tangent of a converged assembly (for adjoint solves).
+pub fn factor_converged(model: &Model, a: &Assembled) -> Result<Factor, SolveError> {
+    match &a.k {
+        Some(k) => model.factor(k),
+        None => Err(SolveError::Singular),
+    }
+}

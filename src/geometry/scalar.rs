@@ -2,11 +2,9 @@
 //! `num_dual` numbers, so that `f64` gives values and `Dual64` gives derivatives with respect to
 //! any design parameter (forward mode).
 
-use num_dual::DualNum;
-
-/// A real number or a forward-mode dual number over `f64`.
-pub trait Scalar: DualNum<Primitive = f64> + Copy {}
-impl<T: DualNum<Primitive = f64> + Copy> Scalar for T {}
+/// A real number or a forward-mode dual number over `f64` (the solver's scalar abstraction, so
+/// geometry and FE kernels differentiate with the same number types).
+pub use twistopt_solver::scalar::Scalar;
 
 /// Constant as a scalar.
 #[inline]

@@ -435,66 +435,7 @@ pub fn mesh_shape_derivatives(geom: &ActuatorGeometry, spec: &MeshSpec) -> Resul
 
 /// Derivatives (∂N/∂ξ, ∂N/∂η, ∂N/∂ζ) of the element shape functions at a natural point.
 pub fn shape_gradients(kind: ElementKind, xi: [f64; 3]) -> Vec<[f64; 3]> {
-    let nat = kind.natural_coords();
-    match kind {
-        ElementKind::Hex8 => nat
-            .iter()
-            .map(|a| {
-                let f = |m: usize| 1.0 + xi[m] * a[m] as f64;
-                [
-                    0.125 * a[0] as f64 * f(1) * f(2),
-                    0.125 * a[1] as f64 * f(0) * f(2),
-                    0.125 * a[2] as f64 * f(0) * f(1),
-                ]
-            })
-            .collect(),
-        ElementKind::Hex27 => {
-            let l = |a: i8, x: f64| match a {
-                -1 => 0.5 * x * (x - 1.0),
-                0 => 1.0 - x * x,
-                _ => 0.5 * x * (x + 1.0),
-            };
-            let dl = |a: i8, x: f64| match a {
-                -1 => x - 0.5,
-                0 => -2.0 * x,
-                _ => x + 0.5,
-            };
-            nat.iter()
-                .map(|a| {
-                    [
-                        dl(a[0], xi[0]) * l(a[1], xi[1]) * l(a[2], xi[2]),
-                        l(a[0], xi[0]) * dl(a[1], xi[1]) * l(a[2], xi[2]),
-                        l(a[0], xi[0]) * l(a[1], xi[1]) * dl(a[2], xi[2]),
-                    ]
-                })
-                .collect()
-        }
-        ElementKind::Hex20 => nat
-            .iter()
-            .map(|a| {
-                let af = [a[0] as f64, a[1] as f64, a[2] as f64];
-                if a.iter().all(|&c| c != 0) {
-                    let f = |m: usize| 1.0 + xi[m] * af[m];
-                    let s = xi[0] * af[0] + xi[1] * af[1] + xi[2] * af[2];
-                    let mut g = [0.0; 3];
-                    for m in 0..3 {
-                        let (o1, o2) = ((m + 1) % 3, (m + 2) % 3);
-                        g[m] = 0.125 * af[m] * f(o1) * f(o2) * (s - 2.0 + f(m));
-                    }
-                    g
-                } else {
-                    let m0 = a.iter().position(|&c| c == 0).expect("edge node");
-                    let (o1, o2) = ((m0 + 1) % 3, (m0 + 2) % 3);
-                    let f = |m: usize| 1.0 + xi[m] * af[m];
-                    let mut g = [0.0; 3];
-                    g[m0] = 0.25 * (-2.0 * xi[m0]) * f(o1) * f(o2);
-                    g[o1] = 0.25 * (1.0 - xi[m0] * xi[m0]) * af[o1] * f(o2);
-                    g[o2] = 0.25 * (1.0 - xi[m0] * xi[m0]) * f(o1) * af[o2];
-                    g
-                }
-            })
-            .collect(),
-    }
+    twistopt_solver::shape::hex_shape(kind, xi).1
 }
 
 /// Natural points where the Jacobian is checked: the 8 corners plus the Gauss points

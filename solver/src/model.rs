@@ -226,7 +226,7 @@ impl Model {
                         }
                     }
                     if let Some(kv) = kv.as_mut() {
-                        self.fill_rows(conn, &kin, &mut rows, &mut rowbuf);
+                        self.fill_rows(conn, &kin, &mut rows);
                         self.scatter(&rows, &k, kv);
                     }
                 }
@@ -262,7 +262,7 @@ impl Model {
                         }
                         h.iter_mut().for_each(|v| *v *= -p);
                         let mut rws: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
-                        self.fill_rows(nodes, &kin, &mut rws, &mut rowbuf);
+                        self.fill_rows(nodes, &kin, &mut rws);
                         self.scatter(&rws, &h, kv);
                     }
                 }
@@ -335,7 +335,7 @@ impl Model {
         })
     }
 
-    fn fill_rows(&self, nodes: &[usize], kin: &[BodyKin], rows: &mut Vec<Vec<(u32, f64)>>, _buf: &mut Vec<(u32, f64)>) {
+    fn fill_rows(&self, nodes: &[usize], kin: &[BodyKin], rows: &mut Vec<Vec<(u32, f64)>>) {
         let x0 = &self.mesh.nodes;
         rows.resize(3 * nodes.len(), Vec::new());
         for (a, &n) in nodes.iter().enumerate() {
@@ -518,9 +518,4 @@ pub fn resultant(nodes: &[usize], x0: &[[f64; 3]], u: &[[f64; 3]], r_full: &[f64
         }
     }
     (f, m)
-}
-
-/// Strain-energy based checks use this helper: material parameters by name.
-pub fn material_param_names(m: &Material) -> Vec<&'static str> {
-    m.param_names()
 }

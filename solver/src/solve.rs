@@ -53,8 +53,8 @@ fn ext_scale(loads: &Loads, a: &Assembled) -> f64 {
     a.f_scale.max(fb)
 }
 
-/// Solve r(q) = 0 at fixed loads starting from q (updated in place on success; on failure q is
-/// left at the last iterate only if `keep_on_failure`, otherwise restored).
+/// Solve r(q) = 0 at fixed loads starting from q (updated in place on success, restored on failure).
+/// On success the returned assembly holds the tangent at the converged state.
 pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptions) -> Result<(NewtonStats, Assembled), NewtonFailure> {
     let q_start = q.clone();
     let fail = |q: &mut Vec<f64>, f: NewtonFailure| {
@@ -239,7 +239,6 @@ pub struct PathResult {
     pub loads: Loads,
     pub steps: usize,
     pub newton_iterations: usize,
-    pub factorizations: usize,
 }
 
 /// Follow loads(t) = lerp(from, to, t) from t = 0 (state q0 converged at `from`) to t = 1.
@@ -263,7 +262,7 @@ pub fn follow_path(
     let mut k_conv: Option<Vec<f64>> = model.assemble(&q, from, true).ok().and_then(|a| a.k);
     while t < 1.0 - 1e-12 {
         if steps >= opts.max_steps {
-            return PathResult { status: PathStatus::Failed(FailureCause::StepLimit), t, q, loads, steps, newton_iterations: total_it, factorizations: total_it };
+            return PathResult { status: PathStatus::Failed(FailureCause::StepLimit), t, q, loads, steps, newton_iterations: total_it };
         }
         let tn = (t + dt).min(1.0);
         let trial = Loads::lerp(from, to, tn);
@@ -290,7 +289,7 @@ pub fn follow_path(
                 last_fail = None;
                 let info = StepInfo { t, loads: &loads, q: &q, assembled: &a, newton_iterations: stats.iterations };
                 if let Some(reason) = on_step(&info) {
-                    return PathResult { status: PathStatus::Stopped(reason), t, q, loads, steps, newton_iterations: total_it, factorizations: total_it };
+                    return PathResult { status: PathStatus::Stopped(reason), t, q, loads, steps, newton_iterations: total_it };
                 }
                 if stats.iterations <= opts.easy_iterations {
                     dt = (dt * opts.grow).min(opts.max);
@@ -315,7 +314,7 @@ pub fn follow_path(
             NewtonFailure::IterationLimit => FailureCause::IterationLimit,
         }),
     };
-    PathResult { status, t, q, loads, steps, newton_iterations: total_it, factorizations: total_it }
+    PathResult { status, t, q, loads, steps, newton_iterations: total_it }
 }
 
 /// Convenience: factor the tangent of a converged assembly (for adjoint solves).

@@ -84,7 +84,8 @@ pub struct Assembled {
     pub k: Option<Vec<f64>>,
     /// Full nodal residual f_int − f_ext (3 per node): the reaction forces at constrained DOFs.
     pub r_full: Vec<f64>,
-    /// Norm of the internal force vector (scale for convergence tests).
+    /// √Σ_e ‖f_e‖² over the element internal force vectors: the size of the (largely cancelling)
+    /// terms summed into the residual, hence the scale of its round-off; used by convergence tests.
     pub f_scale: f64,
     /// Strain energy and cavity volume (of the modelled part).
     pub energy: f64,
@@ -218,6 +219,7 @@ impl Model {
                 for (off, (en, mj, f, k)) in res.into_iter().enumerate() {
                     let el = start + off;
                     energy += en;
+                    f_int_sq += f.iter().map(|v| v * v).sum::<f64>();
                     min_det_f = min_det_f.min(mj);
                     let conn = self.mesh.element(el);
                     for (a, &n) in conn.iter().enumerate() {
@@ -232,7 +234,6 @@ impl Model {
                 }
             }
         }
-        f_int_sq += r_full.iter().map(|v| v * v).sum::<f64>();
         // cavity pressure: −p ∂V/∂x, tangent −p ∂²V/∂x²
         let mut volume = 0.0;
         if let Some(cav) = &self.cavity {

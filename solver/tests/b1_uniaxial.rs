@@ -9,7 +9,9 @@ use twistopt_solver::model::{Loads, Model};
 use twistopt_solver::solve::{follow_path, PathStatus, StepOptions};
 
 fn uniaxial(kind: ElementKind, ratio: f64, stretches: &[f64]) -> Vec<(f64, f64, f64)> {
-    let mesh = meshgen::boxed(kind, [2, 2, 2], [1.0, 1.0, 1.0]);
+    // one Q2 element or a 2x2x2 Q1 block (the deformation is homogeneous: any mesh is exact)
+    let n = if kind == ElementKind::Hex27 { 1 } else { 2 };
+    let mesh = meshgen::boxed(kind, [n, n, n], [1.0, 1.0, 1.0]);
     let mut cons = Constraints::default();
     for &n in &mesh.node_sets["xmin"] {
         cons.prescribed.push((n, 0, 0.0));
@@ -38,7 +40,7 @@ fn uniaxial(kind: ElementKind, ratio: f64, stretches: &[f64]) -> Vec<(f64, f64, 
         let q0 = vec![0.0; model.n_reduced()];
         let mut force = 0.0;
         let mut lat = 0.0;
-        let opts = StepOptions { max: 0.05, ..StepOptions::default() };
+        let opts = StepOptions { max: 0.02, ..StepOptions::default() };
         let res = follow_path(&model, &q0, &from, &to, &opts, |info| {
             force = xmax.iter().map(|&n| info.assembled.r_full[3 * n]).sum::<f64>();
             // lateral stretch from the corner node (1,1,1)
@@ -48,7 +50,7 @@ fn uniaxial(kind: ElementKind, ratio: f64, stretches: &[f64]) -> Vec<(f64, f64, 
             lat = 1.0 + info.assembled.u[corner][1];
             None
         });
-        assert_eq!(res.status, PathStatus::Completed, "λ = {lam}");
+        assert_eq!(res.status, PathStatus::Completed, "{kind:?} κ/μ = {ratio}, λ = {lam}");
         out.push((lam, force, lat)); // area 1 → force = nominal stress
     }
     out
@@ -60,12 +62,12 @@ fn b1_matches_compressible_reference_to_1e8() {
     for (key, ratio) in [("kappa_over_mu_1000", 1000.0), ("kappa_over_mu_5000", 5000.0)] {
         let rows = b1["compressible"]["quad"][key].as_array().unwrap();
         let lams: Vec<f64> = rows.iter().map(|r| r["stretch"].as_f64().unwrap()).collect();
-        // Q1/P0 (mean dilatation) over the whole range. The Q2/P1 block's Newton iteration stalls
-        // on this displacement-driven problem (open problem, see solver/README.md), so it is not
-        // asserted here yet.
-        for kind in [ElementKind::Hex8] {
+        // Q1/P0 (mean dilatation) over the whole range; Q2/P1 down to λ = 0.8: below about 0.75
+        // the Q2/P1 block bifurcates into a spurious non-homogeneous mode (a known property of
+        // mixed elements in large compression, see solver/README.md).
+        for kind in [ElementKind::Hex8, ElementKind::Hex27] {
             let sel: Vec<(usize, f64)> =
-                lams.iter().copied().enumerate().filter(|(_, l)| kind == ElementKind::Hex8 || *l >= 1.0).collect();
+                lams.iter().copied().enumerate().filter(|(_, l)| kind == ElementKind::Hex8 || *l >= 0.8).collect();
             let got = uniaxial(kind, ratio, &sel.iter().map(|x| x.1).collect::<Vec<_>>());
             for ((i, _), (lam, p, t)) in sel.iter().zip(got) {
                 let row = &rows[*i];

@@ -11,3 +11,4 @@ pub mod cli;
 pub mod export;
 pub mod geometry;
 pub mod meshing;
+pub mod scene;

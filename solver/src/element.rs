@@ -398,6 +398,54 @@ pub fn tangent<M: Hyperelastic>(
     Ok(ElementInfo { energy, min_det_f: min_j })
 }
 
+/// Volume-averaged Cauchy stress of an element (MPa), σ = J⁻¹ P Fᵀ with the element's discrete
+/// pressure, for post-processing.
+pub fn mean_cauchy_stress<M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[f64],
+    x0: &[[f64; 3]],
+    u: &[[f64; 3]],
+) -> Result<[[f64; 3]; 3], ElementError> {
+    let qp = gather(form, rule, x0, u)?;
+    let (_, pt, _) = project(form.pressure, mat, params, &qp)?;
+    let mut sig = [[0.0; 3]; 3];
+    let mut vol = 0.0;
+    for (gi, d) in qp.iter().enumerate() {
+        let i1: f64 = (0..3).map(|i| (0..3).map(|k| d.f[i][k] * d.f[i][k]).sum::<f64>()).sum();
+        let jm23 = d.j.powf(-2.0 / 3.0);
+        let w1 = mat.w_iso(params, jm23 * i1)[1];
+        // σ = (2 W1 / J) J^(-2/3) dev(b) + p̃ I
+        let mut b = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for k in 0..3 {
+                b[i][k] = (0..3).map(|m| d.f[i][m] * d.f[k][m]).sum();
+            }
+        }
+        let dv = d.wj0 * d.j;
+        for i in 0..3 {
+            for k in 0..3 {
+                let dev = b[i][k] - if i == k { i1 / 3.0 } else { 0.0 };
+                sig[i][k] += (2.0 * w1 * jm23 / d.j * dev + if i == k { pt[gi] } else { 0.0 }) * dv;
+            }
+        }
+        vol += dv;
+    }
+    for row in sig.iter_mut() {
+        for v in row.iter_mut() {
+            *v /= vol;
+        }
+    }
+    Ok(sig)
+}
+
+/// von Mises equivalent of a Cauchy stress.
+pub fn von_mises(s: &[[f64; 3]; 3]) -> f64 {
+    let (a, b, c) = (s[0][0] - s[1][1], s[1][1] - s[2][2], s[2][2] - s[0][0]);
+    (0.5 * (a * a + b * b + c * c) + 3.0 * (s[0][1] * s[0][1] + s[1][2] * s[1][2] + s[2][0] * s[2][0])).sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -486,6 +534,23 @@ mod tests {
         let info = residual(&form, &rule, &mat, &params, &x0, &u, &mut f).unwrap();
         assert!(info.energy.abs() < 1e-12);
         assert!(f.iter().all(|v| v.abs() < 1e-12));
+    }
+
+    #[test]
+    fn cauchy_stress_of_uniaxial_state() {
+        // homogeneous F = diag(λ, t, t): σ11 − σ22 = μ J^(-5/3) (λ² − t²) for Neo-Hooke
+        let mat: Material = NeoHookean::new(0.34, 340.0).unwrap().into();
+        let form = Formulation::standard(ElementKind::Hex27);
+        let x0: Vec<[f64; 3]> = form.kind.natural_coords().iter().map(|c| [c[0] as f64, c[1] as f64, c[2] as f64]).collect();
+        let (l, t) = (1.3, 0.9);
+        let u: Vec<[f64; 3]> = x0.iter().map(|p| [(l - 1.0) * p[0], (t - 1.0) * p[1], (t - 1.0) * p[2]]).collect();
+        let s = mean_cauchy_stress(&form, &form.rule(), &mat, &mat.params(), &x0, &u).unwrap();
+        let j: f64 = l * t * t;
+        let expect = 0.34 * j.powf(-5.0 / 3.0) * (l * l - t * t);
+        assert!((s[0][0] - s[1][1] - expect).abs() < 1e-12);
+        assert!((s[1][1] - s[2][2]).abs() < 1e-12 && s[0][1].abs() < 1e-12);
+        assert!((s[1][1] - (340.0 * (j - 1.0) - expect / 3.0)).abs() < 1e-9);
+        assert!((von_mises(&s) - expect.abs()).abs() < 1e-12);
     }
 
     #[test]

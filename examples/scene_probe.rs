@@ -9,7 +9,7 @@ fn main() {
     let sector = args.get(3).map(|s| s != "full").unwrap_or(true);
     let geom = ActuatorGeometry::new(&Design::new(5.0 * 3f64.sqrt(), 10.0, 60.0), RangePolicy::TableI).unwrap();
     let spec = MeshSpec::parse(&mesh).or_else(|_| MeshSpec::preset(&mesh)).unwrap();
-    let mut opts = SceneOptions::new(spec, NeoHookean::with_ratio(0.34, 1000.0).unwrap().into());
+    let mut opts = SceneOptions::new(spec, NeoHookean::with_ratio(0.34, args.get(4).map(|s| s.parse().unwrap()).unwrap_or(1000.0)).unwrap().into());
     opts.sector = sector;
     for kind in [SceneKind::Free, SceneKind::Blocked] {
         let r = run_pressure(&geom, &opts, kind, &[p]).unwrap();

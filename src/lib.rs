@@ -4,11 +4,16 @@
 //! * [`meshing`]: structured hexahedral meshes of the wall (Hex8/Hex20/Hex27, full or 120° sector)
 //!   with named node/face sets, quality report and shape derivatives;
 //! * [`export`]: VTU/PVD, STL and INP writers;
+//! * [`problem`]: TOML problem files; [`evaluate`]: run a problem's scenes and write its outputs;
+//! * [`plot`]: PNG/SVG line plots with an embedded font;
 //! * [`cli`]: the command-line interface.
 pub use twistopt_solver as solver;
 
 pub mod cli;
+pub mod evaluate;
 pub mod export;
 pub mod geometry;
 pub mod meshing;
+pub mod plot;
+pub mod problem;
 pub mod scene;

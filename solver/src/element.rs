@@ -310,7 +310,22 @@ pub fn tangent<M: Hyperelastic>(
                 f_out[3 * a_ + i] += (piso + pj * sg[a_][i]) * wj0;
             }
         }
-        // material + geometric isochoric tangent
+        // fold the volumetric geometric term p̃J(g_a⊗g_b − g_b⊗g_a) (and, without projection,
+        // U''J² g_a⊗g_b) into the material-form tangent A
+        for i in 0..3 {
+            for cj in 0..3 {
+                for k in 0..3 {
+                    for cl in 0..3 {
+                        let mut v = pj * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
+                        if np == 0 {
+                            v += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
+                        }
+                        a[3 * i + cj][3 * k + cl] += v;
+                    }
+                }
+            }
+        }
+        // K_ab[i][k] += Σ_JL G_aJ A[iJ][kL] G_bL w, upper block triangle b ≥ a (mirrored below)
         for a_ in 0..nn {
             let ga = d.g[a_];
             for i in 0..3 {
@@ -323,22 +338,14 @@ pub fn tangent<M: Hyperelastic>(
                     }
                 }
             }
-            for b in 0..nn {
+            for b in a_..nn {
                 let gbv = d.g[b];
-                let sa = sg[a_];
-                let sb = sg[b];
                 for i in 0..3 {
                     let row = (3 * a_ + i) * nd + 3 * b;
-                    for k in 0..3 {
-                        let h = &ha[9 * i + 3 * k..9 * i + 3 * k + 3];
-                        let mut v = h[0] * gbv[0] + h[1] * gbv[1] + h[2] * gbv[2];
-                        // volumetric geometric term p̃ J (g_a⊗g_b − g_b⊗g_a)
-                        v += pj * (sa[i] * sb[k] - sb[i] * sa[k]) * wj0;
-                        if np == 0 {
-                            v += upp * d.j * d.j * sa[i] * sb[k] * wj0;
-                        }
-                        k_out[row + k] += v;
-                    }
+                    let h = &ha[9 * i..9 * i + 9];
+                    k_out[row] += h[0] * gbv[0] + h[1] * gbv[1] + h[2] * gbv[2];
+                    k_out[row + 1] += h[3] * gbv[0] + h[4] * gbv[1] + h[5] * gbv[2];
+                    k_out[row + 2] += h[6] * gbv[0] + h[7] * gbv[1] + h[8] * gbv[2];
                 }
             }
         }
@@ -351,6 +358,15 @@ pub fn tangent<M: Hyperelastic>(
                 }
                 for s in 0..np {
                     hmat[r * np + s] += upp * d.q[r] * d.q[s] * wj0;
+                }
+            }
+        }
+    }
+    for a_ in 0..nn {
+        for b in a_ + 1..nn {
+            for i in 0..3 {
+                for k in 0..3 {
+                    k_out[(3 * b + k) * nd + 3 * a_ + i] = k_out[(3 * a_ + i) * nd + 3 * b + k];
                 }
             }
         }

@@ -121,6 +121,15 @@ pub struct Model {
     symbolic_lu: std::sync::OnceLock<Option<(SymbolicSparseColMat<u32>, Vec<usize>, SymbolicLu<u32>)>>,
     /// Elements per parallel work unit (fixed: results do not depend on the thread count).
     pub chunk: usize,
+    /// Per-element scatter tables (built on first use when they fit in memory).
+    scatter_cache: std::sync::OnceLock<Option<Vec<ElemScatter>>>,
+}
+
+/// Where each pair of an element's (local DOF → reduced DOF) terms lands in the CSC values.
+#[derive(Clone, Debug)]
+struct ElemScatter {
+    local: Vec<u16>,
+    slots: Vec<u32>,
 }
 
 impl Model {
@@ -159,6 +168,7 @@ impl Model {
             symbolic,
             symbolic_lu: std::sync::OnceLock::new(),
             chunk: 32,
+            scatter_cache: std::sync::OnceLock::new(),
         })
     }
 
@@ -229,7 +239,10 @@ impl Model {
                     }
                     if let Some(kv) = kv.as_mut() {
                         self.fill_rows(conn, &kin, &mut rows);
-                        self.scatter(&rows, &k, kv);
+                        match self.scatter_tables() {
+                            Some(tables) => scatter_cached(&tables[el], &rows, &k, kv),
+                            None => self.scatter(&rows, &k, kv),
+                        }
                     }
                 }
             }
@@ -348,6 +361,46 @@ impl Model {
         }
     }
 
+    fn scatter_tables(&self) -> Option<&Vec<ElemScatter>> {
+        self.scatter_cache
+            .get_or_init(|| {
+                let nd = 3 * self.mesh.kind.nodes_per_element();
+                let mut total = 0usize;
+                let mut out = Vec::with_capacity(self.mesh.n_elements());
+                let mut pat = Vec::new();
+                for e in 0..self.mesh.n_elements() {
+                    let mut local = Vec::with_capacity(nd);
+                    let mut ks = Vec::with_capacity(nd);
+                    for (a, &n) in self.mesh.element(e).iter().enumerate() {
+                        for c in 0..3 {
+                            pat.clear();
+                            self.dofs.row_pattern(n, c, &mut pat);
+                            for &k in &pat {
+                                local.push((3 * a + c) as u16);
+                                ks.push(k);
+                            }
+                        }
+                    }
+                    let nt = ks.len();
+                    total += nt * nt;
+                    if total > 128 << 20 {
+                        return None; // > 512 MB of tables: fall back to searching
+                    }
+                    let mut slots = vec![u32::MAX; nt * nt];
+                    for p in 0..nt {
+                        for q in 0..nt {
+                            if ks[p] <= ks[q] {
+                                slots[p * nt + q] = self.pattern.slot(ks[p], ks[q]) as u32;
+                            }
+                        }
+                    }
+                    out.push(ElemScatter { local, slots });
+                }
+                Some(out)
+            })
+            .as_ref()
+    }
+
     /// K_red[k,l] += Σ c_i c_j K_e[i][j] over the rows of the local DOFs (upper triangle only).
     fn scatter(&self, rows: &[Vec<(u32, f64)>], ke: &[f64], kv: &mut [f64]) {
         let nd = rows.len();
@@ -449,6 +502,28 @@ impl Factor {
             Ok(x)
         } else {
             Err(SolveError::NonFinite)
+        }
+    }
+}
+
+/// Cached scatter: the coefficients come from the current rows (same order as the pattern).
+fn scatter_cached(t: &ElemScatter, rows: &[Vec<(u32, f64)>], ke: &[f64], kv: &mut [f64]) {
+    let nd = rows.len();
+    let coef: Vec<f64> = rows.iter().flat_map(|r| r.iter().map(|x| x.1)).collect();
+    let nt = coef.len();
+    debug_assert_eq!(nt, t.local.len());
+    for p in 0..nt {
+        let cp = coef[p];
+        if cp == 0.0 {
+            continue;
+        }
+        let krow = &ke[t.local[p] as usize * nd..(t.local[p] as usize + 1) * nd];
+        let srow = &t.slots[p * nt..(p + 1) * nt];
+        for q in 0..nt {
+            let s = srow[q];
+            if s != u32::MAX {
+                kv[s as usize] += cp * coef[q] * krow[t.local[q] as usize];
+            }
         }
     }
 }

@@ -58,6 +58,14 @@ fn ext_scale(loads: &Loads, a: &Assembled) -> f64 {
 /// Solve r(q) = 0 at fixed loads starting from q (updated in place on success, restored on failure).
 /// On success the returned assembly holds the tangent at the converged state.
 pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptions) -> Result<(NewtonStats, Assembled), NewtonFailure> {
+    newton_factored(model, q, loads, opts).map(|(s, a, _)| (s, a))
+}
+
+/// As [`newton`], also returning the Cholesky factor of the tangent at the converged state.
+/// Iterates whose tangent is indefinite (off equilibrium, e.g. a follower-pressure step) are
+/// solved with LU; a converged state whose tangent is not positive definite is unstable and is
+/// reported as `NotPositiveDefinite` (unless `opts.indefinite`, where the LU factor is returned).
+pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptions) -> Result<(NewtonStats, Assembled, Factor), NewtonFailure> {
     let q_start = q.clone();
     let fail = |q: &mut Vec<f64>, f: NewtonFailure| {
         *q = q_start.clone();
@@ -85,7 +93,13 @@ pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptio
         let at_floor = it > 0 && rn <= (opts.stagnation_rtol * scale).max(opts.atol) && rn > 0.5 * last_norm;
         if rn <= tol || at_floor {
             stats.iterations = it;
-            return Ok((stats, a));
+            let k = a.k.as_ref().expect("tangent requested");
+            let fac = if opts.indefinite { model.factor_lu(k) } else { model.factor(k) };
+            return match fac {
+                Ok(f) => Ok((stats, a, f)),
+                Err(SolveError::NotPositiveDefinite) => fail(q, NewtonFailure::NotPositiveDefinite),
+                Err(_) => fail(q, NewtonFailure::Divergence),
+            };
         }
         if it == opts.max_iter {
             break;
@@ -101,7 +115,10 @@ pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptio
         let fac = if opts.indefinite { model.factor_lu(&kv) } else { model.factor(&kv) };
         let fac = match fac {
             Ok(f) => f,
-            Err(SolveError::NotPositiveDefinite) => return fail(q, NewtonFailure::NotPositiveDefinite),
+            Err(SolveError::NotPositiveDefinite) => match model.factor_lu(&kv) {
+                Ok(f) => f,
+                Err(_) => return fail(q, NewtonFailure::NotPositiveDefinite),
+            },
             Err(_) => return fail(q, NewtonFailure::Divergence),
         };
         let neg: Vec<f64> = a.r.iter().map(|v| -v).collect();
@@ -264,8 +281,8 @@ pub fn follow_path(
     let mut total_it = 0;
     let mut last_fail = None;
     let mut loads = from.clone();
-    // tangent at the last converged state, for the predictor
-    let mut k_conv: Option<Vec<f64>> = model.assemble(&q, from, true).ok().and_then(|a| a.k);
+    // factor of the tangent at the last converged state, for the predictor
+    let mut f_conv: Option<Factor> = model.assemble(&q, from, true).ok().and_then(|a| a.k).and_then(|k| model.factor(&k).ok());
     while t < 1.0 - 1e-12 {
         if steps >= opts.max_steps {
             return PathResult { status: PathStatus::Failed(FailureCause::StepLimit), t, q, loads, steps, newton_iterations: total_it };
@@ -274,8 +291,8 @@ pub fn follow_path(
         let trial = Loads::lerp(from, to, tn);
         let mut qn = q.clone();
         // predictor: q − K(q_conv)⁻¹ r(q_conv; loads(t + dt)) — linear response to the increment
-        if let Some(kc) = &k_conv {
-            if let (Ok(f), Ok(a)) = (model.factor(kc), model.assemble(&q, &trial, false)) {
+        if let Some(f) = &f_conv {
+            if let Ok(a) = model.assemble(&q, &trial, false) {
                 if let Ok(dq) = f.solve(&a.r) {
                     let qp: Vec<f64> = q.iter().zip(&dq).map(|(x, d)| x - d).collect();
                     if model.assemble(&qp, &trial, false).is_ok() {
@@ -284,10 +301,10 @@ pub fn follow_path(
                 }
             }
         }
-        match newton(model, &mut qn, &trial, &opts.newton) {
-            Ok((stats, a)) => {
+        match newton_factored(model, &mut qn, &trial, &opts.newton) {
+            Ok((stats, a, fac)) => {
                 steps += 1;
-                k_conv = a.k.clone();
+                f_conv = Some(fac);
                 total_it += stats.iterations;
                 t = tn;
                 q = qn;

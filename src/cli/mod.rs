@@ -4,6 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod evaluate;
 pub mod geometry;
 
 /// twistopt — design optimisation of soft twisting pneumatic actuators.
@@ -12,8 +13,8 @@ pub mod geometry;
 /// triangular "horseshoe" of six arcs of radius r, whose lateral edge is a three-arc bellows with
 /// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
 ///
-/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports). The FE evaluation,
-/// gradients and the optimiser are in progress. Run `twistopt <COMMAND> --help` for the options.
+/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports) and `evaluate` (FE
+/// load scenes of a problem file). Gradients and the optimiser are in progress. Run `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
 #[command(name = "twistopt", version, propagate_version = true)]
 pub struct Cli {
@@ -26,11 +27,16 @@ pub enum Command {
     /// Build the geometry and mesh of one design; write summary.json, mesh.vtu, outer.stl,
     /// cavity.stl and mesh.inp to an output directory.
     Geometry(geometry::GeometryArgs),
+    /// Run a problem file (design, material, load, scenes, fidelity): the FE scenes, energy
+    /// density and torque-rotation; write result.json, CSV tables, PNG/SVG plots and ParaView
+    /// series to an output directory.
+    Evaluate(evaluate::EvaluateArgs),
 }
 
 /// Run a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Geometry(args) => geometry::run(&args),
+        Command::Evaluate(args) => evaluate::run(&args),
     }
 }

@@ -1,0 +1,475 @@
+//! `evaluate`: run a [`Problem`]'s scenes and write result.json, CSV tables, plots and ParaView
+//! series to an output directory.
+//!
+//! Solver failures (ballooning, inversion, limit point, self-contact, …) are results, not errors:
+//! the scene's `status` and `cause` say what ended it and every file is still written with the
+//! steps it reached. Errors are reserved for bad input and I/O.
+//!
+//! # Energy density (the letter's rule)
+//!
+//! For the pair `free` + `blocked` (combined mode) and the pair `pure-twist` +
+//! `pure-twist-blocked`: the common pressure is the lower of the two scenes' highest converged
+//! positive pressures; θ (free scene) and τ (blocked scene) are linearly interpolated between
+//! recorded steps at that pressure and Ω = τθ/(8V), V = πR0²L ([`energy_density`]). θ is signed
+//! about +z and the letter states no sign convention, so |θ| and |τ| are used when θ and τ have
+//! the same sign (the blocked actuator pushes the way it would turn); otherwise Ω is reported
+//! signed (≤ 0) and `abs_values_used = false` says so. The same is done for the vacuum branch
+//! (the two scenes' least negative final pressures) and at every requested pressure both scenes
+//! reached (`omega_by_pressure`).
+
+use anyhow::{Context, Result};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+
+use crate::export::{write_pvd, write_vtu, DataArray};
+use crate::plot::{line_plot, LinePlot, Series};
+use crate::problem::{LoadPlan, Problem, Validated};
+use crate::scene::{energy_density, run_pressure, run_torque_rotation, SceneKind, SceneResult, StepRecord, TorqueRotation};
+
+/// Relative tolerance for matching recorded pressures to requested ones.
+const P_TOL: f64 = 1e-9;
+
+fn same_p(a: f64, b: f64) -> bool {
+    (a - b).abs() <= P_TOL * (1.0 + a.abs().max(b.abs()))
+}
+
+fn step_finite(s: &StepRecord) -> bool {
+    [s.p_kpa, s.theta_deg, s.axial_mm, s.tau_nm, s.max_radius_mm, s.cavity_volume_mm3, s.min_det_f].iter().all(|v| v.is_finite())
+}
+
+/// Keep the steps to report: with a list of target pressures, the unloaded state, the states at
+/// the targets, and the last converged state of a branch that stopped before its last target;
+/// with a ramp, every converged step. Non-finite records are dropped. Fields follow the steps.
+pub fn select_steps(r: &mut SceneResult, plan: &LoadPlan) {
+    let n = r.steps.len();
+    let keep: Vec<bool> = match plan {
+        LoadPlan::Ramp(_) => vec![true; n],
+        LoadPlan::Targets(t) => {
+            let pmax = r.steps.iter().map(|s| s.p_kpa).fold(f64::NEG_INFINITY, f64::max);
+            let pmin = r.steps.iter().map(|s| s.p_kpa).fold(f64::INFINITY, f64::min);
+            let tmax = t.iter().copied().fold(0.0, f64::max);
+            let tmin = t.iter().copied().fold(0.0, f64::min);
+            r.steps
+                .iter()
+                .map(|s| {
+                    s.p_kpa == 0.0
+                        || t.iter().any(|&p| same_p(p, s.p_kpa))
+                        || (s.p_kpa > 0.0 && s.p_kpa == pmax && !same_p(pmax, tmax))
+                        || (s.p_kpa < 0.0 && s.p_kpa == pmin && !same_p(pmin, tmin))
+                })
+                .collect()
+        }
+    };
+    let keep: Vec<bool> = keep.iter().zip(&r.steps).map(|(k, s)| *k && step_finite(s)).collect();
+    let mut steps = Vec::new();
+    let mut seen_zero = false;
+    let mut idx = Vec::new();
+    for (i, s) in r.steps.iter().enumerate() {
+        if !keep[i] || (s.p_kpa == 0.0 && seen_zero) {
+            continue;
+        }
+        seen_zero |= s.p_kpa == 0.0;
+        let mut s = s.clone();
+        if let LoadPlan::Targets(t) = plan {
+            if let Some(&p) = t.iter().find(|&&p| same_p(p, s.p_kpa)) {
+                s.p_kpa = p;
+            }
+        }
+        steps.push(s);
+        idx.push(i);
+    }
+    r.steps = steps;
+    if let Some(f) = r.fields.as_mut() {
+        f.displacements = idx.iter().filter_map(|&i| f.displacements.get(i).cloned()).collect();
+    }
+}
+
+/// Linear interpolation of `value` over steps sorted by pressure; None outside the range.
+pub fn interpolate(steps: &[StepRecord], p: f64, value: impl Fn(&StepRecord) -> f64) -> Option<f64> {
+    let mut s: Vec<&StepRecord> = steps.iter().collect();
+    s.sort_by(|a, b| a.p_kpa.total_cmp(&b.p_kpa));
+    if let Some(x) = s.iter().find(|x| same_p(x.p_kpa, p)) {
+        return Some(value(x));
+    }
+    s.windows(2).find(|w| w[0].p_kpa <= p && p <= w[1].p_kpa).map(|w| {
+        let t = (p - w[0].p_kpa) / (w[1].p_kpa - w[0].p_kpa);
+        value(w[0]) + t * (value(w[1]) - value(w[0]))
+    })
+}
+
+/// Ω at one pressure from a free and a blocked scene, with the sign rule of the module docs.
+fn omega_at(free: &[StepRecord], blocked: &[StepRecord], p: f64) -> Option<Value> {
+    let theta = interpolate(free, p, |s| s.theta_deg)?;
+    let tau = interpolate(blocked, p, |s| s.tau_nm)?;
+    let same = theta * tau > 0.0;
+    let omega = if same { energy_density(theta.abs(), tau.abs()) } else { energy_density(theta, tau) };
+    Some(json!({
+        "p_kPa": p,
+        "theta_deg": theta,
+        "tau_Nm": tau,
+        "same_sign": same,
+        "abs_values_used": same,
+        "omega_J_m3": omega,
+    }))
+}
+
+/// Ω details for one pair of scenes: the letter's rule on each branch and the table at the
+/// requested pressures.
+fn omega_pair(free: &SceneResult, blocked: &SceneResult, requested: &[f64]) -> Value {
+    let extreme = |r: &SceneResult, positive: bool| {
+        r.steps
+            .iter()
+            .map(|s| s.p_kpa)
+            .filter(|p| if positive { *p > 0.0 } else { *p < 0.0 })
+            .fold(None, |acc: Option<f64>, p| Some(match acc {
+                None => p,
+                Some(a) if positive => a.max(p),
+                Some(a) => a.min(p),
+            }))
+    };
+    let branch = |positive: bool| -> Value {
+        match (extreme(free, positive), extreme(blocked, positive)) {
+            (Some(pf), Some(pb)) => {
+                let pc = if positive { pf.min(pb) } else { pf.max(pb) };
+                let mut v = omega_at(&free.steps, &blocked.steps, pc).unwrap_or(Value::Null);
+                if let Some(o) = v.as_object_mut() {
+                    o.insert(format!("p_{}_reached_kPa", free.scene.replace('-', "_")), json!(pf));
+                    o.insert(format!("p_{}_reached_kPa", blocked.scene.replace('-', "_")), json!(pb));
+                }
+                v
+            }
+            _ => Value::Null,
+        }
+    };
+    let positive = branch(true);
+    let negative = branch(false);
+    let table: Vec<Value> = requested.iter().filter_map(|&p| omega_at(&free.steps, &blocked.steps, p)).collect();
+    let note = if positive.is_null() {
+        format!("no positive pressure converged in both '{}' and '{}': Ω by the letter's rule does not apply", free.scene, blocked.scene)
+    } else {
+        String::new()
+    };
+    json!({
+        "scenes": [free.scene, blocked.scene],
+        "positive": positive,
+        "negative": negative,
+        "omega_by_pressure": table,
+        "note": note,
+    })
+}
+
+/// Where the outputs went and the JSON written.
+pub struct Evaluation {
+    pub result: Value,
+    pub files: Vec<PathBuf>,
+}
+
+const CSV_HEADER: &str = "p_kPa,theta_deg,axial_mm,tau_Nm,max_radius_mm,cavity_volume_mm3,min_detF,newton_iterations";
+
+/// A number for CSV: plain decimal for ordinary magnitudes, exponent form for tiny or huge ones.
+fn num(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e9).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+fn write_scene_csv(path: &Path, r: &SceneResult) -> Result<()> {
+    let mut s = String::from(CSV_HEADER);
+    s.push('\n');
+    for x in &r.steps {
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{}\n",
+            num(x.p_kpa),
+            num(x.theta_deg),
+            num(x.axial_mm),
+            num(x.tau_nm),
+            num(x.max_radius_mm),
+            num(x.cavity_volume_mm3),
+            num(x.min_det_f),
+            x.newton_iterations
+        ));
+    }
+    std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn write_scene_vtu(dir: &Path, r: &SceneResult) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let sub = dir.join(&r.scene);
+    std::fs::create_dir_all(&sub).with_context(|| format!("cannot create {}", sub.display()))?;
+    let mut entries = Vec::new();
+    if let Some(f) = &r.fields {
+        for (k, (step, u)) in r.steps.iter().zip(&f.displacements).enumerate() {
+            let name = format!("{}/step_{k:03}.vtu", r.scene);
+            let flat: Vec<f64> = u.iter().flatten().copied().collect();
+            let vm = f.von_mises(k);
+            write_vtu(&dir.join(&name), &f.mesh, &[DataArray::new("displacement", 3, &flat)], &[DataArray::new("von_mises_MPa", 1, &vm)])?;
+            files.push(dir.join(&name));
+            entries.push((step.p_kpa, name));
+        }
+    }
+    let pvd = dir.join(format!("{}.pvd", r.scene));
+    write_pvd(&pvd, &entries)?;
+    files.push(pvd);
+    Ok(files)
+}
+
+fn scene_json(r: &SceneResult) -> Value {
+    json!({
+        "status": r.status,
+        "cause": r.cause,
+        "steps": r.steps,
+        "dofs": r.dofs,
+        "elements": r.elements,
+        "newton_iterations": r.newton_iterations,
+        "wall_time_s": r.wall_time_s,
+    })
+}
+
+fn torque_json(mode: &str, t: &TorqueRotation) -> Value {
+    let pts: Vec<Value> = t.points.iter().filter(|p| p.0.is_finite() && p.1.is_finite()).map(|p| json!({"theta_deg": p.0, "tau_Nm": p.1})).collect();
+    json!({
+        "mode": mode,
+        "p_kPa": t.p_kpa,
+        "free_theta_deg": if t.free_theta_deg.is_finite() { t.free_theta_deg } else { 0.0 },
+        "points": pts,
+        "nonlinearity": if t.nonlinearity.is_finite() { t.nonlinearity } else { 0.0 },
+        "status": t.status,
+    })
+}
+
+/// A scene that could not be built (e.g. an unusable mesh) as a failed result.
+fn failed_scene(kind: SceneKind, cause: String) -> SceneResult {
+    SceneResult {
+        scene: kind.name().to_string(),
+        status: "model-error".into(),
+        cause,
+        steps: Vec::new(),
+        dofs: 0,
+        elements: 0,
+        newton_iterations: 0,
+        wall_time_s: 0.0,
+        fields: None,
+    }
+}
+
+/// Run a problem and write every output to `out`. `log` receives progress lines.
+pub fn evaluate(problem: &Problem, out: &Path, mut log: impl FnMut(&str)) -> Result<Evaluation> {
+    let v: Validated = problem.validate()?;
+    let opts = problem.scene_options(&v);
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create output directory {}", out.display()))?;
+    let mut files = Vec::new();
+    let targets = v.load.targets();
+
+    // scenes
+    let mut results: Vec<SceneResult> = Vec::new();
+    for &kind in &v.scenes {
+        log(&format!("scene {} ...", kind.name()));
+        let mut r = match run_pressure(&v.geometry, &opts, kind, &targets) {
+            Ok(r) => r,
+            Err(e) => failed_scene(kind, format!("{e}").replace('\n', " ")),
+        };
+        select_steps(&mut r, &v.load);
+        let last = r.steps.iter().map(|s| s.p_kpa).fold(0.0, |a: f64, p| if p.abs() > a.abs() { p } else { a });
+        log(&format!(
+            "scene {}: {}{}; {} steps recorded (|p| up to {last} kPa), {} dofs, {:.1} s",
+            r.scene,
+            r.status,
+            if r.cause.is_empty() { String::new() } else { format!(" ({})", r.cause) },
+            r.steps.len(),
+            r.dofs,
+            r.wall_time_s
+        ));
+        let csv = out.join(format!("{}.csv", r.scene));
+        write_scene_csv(&csv, &r)?;
+        files.push(csv);
+        if problem.output.vtu {
+            files.extend(write_scene_vtu(out, &r)?);
+        }
+        results.push(r);
+    }
+    let find = |k: SceneKind| results.iter().find(|r| r.scene == k.name());
+
+    // energy density
+    let mut omega = serde_json::Map::new();
+    let v_m3 = std::f64::consts::PI * crate::geometry::R0_ENVELOPE.powi(2) * crate::geometry::L_TUBE * 1e-9;
+    omega.insert(
+        "rule".into(),
+        json!("Omega = tau*theta/(8V), V = pi*R0^2*L; theta (free scene) and tau (blocked scene) linearly interpolated at the lower of the two scenes' highest converged positive pressures; |theta| and |tau| are used only when they have the same sign, otherwise Omega is signed"),
+    );
+    omega.insert("V_m3".into(), json!(v_m3));
+    let mut top = serde_json::Map::new();
+    for (label, key, fk, bk) in [
+        ("combined", "omega_J_m3", SceneKind::Free, SceneKind::Blocked),
+        ("pure_twist", "omega_pure_twist_J_m3", SceneKind::PureTwist, SceneKind::PureTwistBlocked),
+    ] {
+        if let (Some(f), Some(b)) = (find(fk), find(bk)) {
+            let pair = omega_pair(f, b, &targets);
+            top.insert(key.to_string(), pair["positive"].get("omega_J_m3").cloned().unwrap_or(Value::Null));
+            omega.insert(label.into(), pair);
+        }
+    }
+
+    // torque-rotation (Fig. 4b)
+    let mut torque: Vec<(String, TorqueRotation)> = Vec::new();
+    if let Some(tr) = &problem.torque_rotation {
+        let mut topts = opts.clone();
+        topts.keep_fields = false;
+        for (mode, axial_free, fk, bk) in [
+            ("combined", true, SceneKind::Free, SceneKind::Blocked),
+            ("pure-twist", false, SceneKind::PureTwist, SceneKind::PureTwistBlocked),
+        ] {
+            if !(v.scenes.contains(&fk) && v.scenes.contains(&bk)) {
+                continue;
+            }
+            log(&format!("torque-rotation ({mode}) at {:?} kPa ...", tr.pressures_kpa));
+            match run_torque_rotation(&v.geometry, &topts, axial_free, &tr.pressures_kpa, tr.points) {
+                Ok(list) => torque.extend(list.into_iter().map(|t| (mode.to_string(), t))),
+                Err(e) => {
+                    for &p in &tr.pressures_kpa {
+                        torque.push((
+                            mode.to_string(),
+                            TorqueRotation { p_kpa: p, free_theta_deg: 0.0, points: vec![], nonlinearity: 0.0, status: format!("model-error: {e}") },
+                        ));
+                    }
+                }
+            }
+        }
+        let mut s = String::from("mode,p_kPa,free_theta_deg,theta_deg,tau_Nm,status\n");
+        for (mode, t) in &torque {
+            for (th, tau) in t.points.iter().filter(|p| p.0.is_finite() && p.1.is_finite()) {
+                s.push_str(&format!("{mode},{},{},{},{},{}\n", num(t.p_kpa), num(t.free_theta_deg), num(*th), num(*tau), t.status));
+            }
+            if t.points.is_empty() {
+                s.push_str(&format!("{mode},{},{},,,{}\n", num(t.p_kpa), num(t.free_theta_deg), t.status));
+            }
+        }
+        let csv = out.join("torque_rotation.csv");
+        std::fs::write(&csv, s).with_context(|| format!("cannot write {}", csv.display()))?;
+        files.push(csv);
+    }
+
+    // plots
+    let design_label = format!("r = {:.4} mm, l = {} mm, α = {}°", problem.design.r_mm, problem.design.l_mm, problem.design.alpha_deg);
+    let free_like: Vec<&SceneResult> = results.iter().filter(|r| matches!(r.scene.as_str(), "free" | "pure-twist")).collect();
+    if !free_like.is_empty() {
+        let mut plot = LinePlot::new(format!("Free twist θ(p): {design_label}"), "cavity pressure p (kPa)", "twist θ about +z (°)");
+        for r in &free_like {
+            plot.series.push(Series::new(format!("{} ({})", r.scene, r.status), r.steps.iter().map(|s| (s.p_kpa, s.theta_deg)).collect()));
+        }
+        files.extend(line_plot(&out.join("theta_vs_p"), &plot)?);
+    }
+    let blocked_like: Vec<&SceneResult> = results.iter().filter(|r| matches!(r.scene.as_str(), "blocked" | "pure-twist-blocked")).collect();
+    if !blocked_like.is_empty() {
+        let mut plot = LinePlot::new(format!("Blocking torque τ(p): {design_label}"), "cavity pressure p (kPa)", "torque on the cap τ about +z (N·m)");
+        for r in &blocked_like {
+            plot.series.push(Series::new(format!("{} ({})", r.scene, r.status), r.steps.iter().map(|s| (s.p_kpa, s.tau_nm)).collect()));
+        }
+        files.extend(line_plot(&out.join("tau_vs_p"), &plot)?);
+    }
+    if !torque.is_empty() {
+        let mut plot = LinePlot::new(format!("Torque vs rotation: {design_label}"), "prescribed rotation θ (°)", "torque on the cap τ (N·m)");
+        for (mode, t) in &torque {
+            if !t.points.is_empty() {
+                plot.series.push(Series::new(format!("p = {} kPa ({mode})", t.p_kpa), t.points.clone()));
+            }
+        }
+        files.extend(line_plot(&out.join("torque_rotation"), &plot)?);
+    }
+
+    // result.json
+    let design = {
+        let mut d = serde_json::to_value(v.geometry.summary())?;
+        if let Some(o) = d.as_object_mut() {
+            o.insert("range".into(), serde_json::to_value(problem.design.range)?);
+        }
+        d
+    };
+    let elements = results.iter().map(|r| r.elements).max().unwrap_or(0);
+    let mesh = json!({
+        "size": v.mesh.size_string(),
+        "n_around": v.mesh.n_around,
+        "n_along": v.mesh.n_along,
+        "n_through": v.mesh.n_through,
+        "element": format!("{:?}", v.mesh.kind),
+        "model": if opts.sector { "120-degree sector (cyclic symmetry)" } else { "full 360-degree model" },
+        "elements_modelled": elements,
+        "preset": problem.fidelity.preset,
+    });
+    let scenes: serde_json::Map<String, Value> = results.iter().map(|r| (r.scene.clone(), scene_json(r))).collect();
+    let mut result = serde_json::Map::new();
+    result.insert("problem".into(), serde_json::to_value(problem)?);
+    result.insert("design".into(), design);
+    result.insert("mesh".into(), mesh);
+    result.insert("material".into(), json!({"model": "Neo-Hookean", "mu_MPa": problem.material.mu_mpa, "kappa_MPa": problem.material.mu_mpa * problem.material.kappa_over_mu}));
+    result.insert("scenes".into(), Value::Object(scenes));
+    for (k, val) in top {
+        result.insert(k, val);
+    }
+    result.insert("omega".into(), Value::Object(omega));
+    if problem.torque_rotation.is_some() {
+        result.insert("torque_rotation".into(), Value::Array(torque.iter().map(|(m, t)| torque_json(m, t)).collect()));
+    }
+    result.insert("sign_convention".into(), json!("theta: cap rotation about +z (right-hand rule); tau: torque the actuator exerts on the blocked cap about +z (tau > 0 pushes towards +theta)"));
+    result.insert("wall_time_s".into(), json!(results.iter().map(|r| r.wall_time_s).sum::<f64>()));
+    let result = Value::Object(result);
+    let path = out.join("result.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&result)? + "\n").with_context(|| format!("cannot write {}", path.display()))?;
+    files.push(path);
+    Ok(Evaluation { result, files })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(p: f64, theta: f64, tau: f64) -> StepRecord {
+        StepRecord { p_kpa: p, theta_deg: theta, axial_mm: 0.0, tau_nm: tau, max_radius_mm: 20.0, cavity_volume_mm3: 1.0, min_det_f: 1.0, newton_iterations: 1 }
+    }
+
+    fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
+        SceneResult { scene: name.into(), status: "completed".into(), cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, wall_time_s: 0.0, fields: None }
+    }
+
+    #[test]
+    fn omega_uses_the_lower_final_pressure_and_interpolates() {
+        // free reached 70 kPa, blocked 50 kPa → common pressure 50: θ interpolated 40 → 50 kPa
+        let free = scene("free", vec![rec(-20.0, -4.0, 0.0), rec(0.0, 0.0, 0.0), rec(40.0, 8.0, 0.0), rec(60.0, 12.0, 0.0), rec(70.0, 13.0, 0.0)]);
+        let blocked = scene("blocked", vec![rec(-30.0, 0.0, -0.03), rec(0.0, 0.0, 0.0), rec(25.0, 0.0, 0.1), rec(50.0, 0.0, 0.2)]);
+        let v = omega_pair(&free, &blocked, &[-20.0, 40.0, 60.0]);
+        let pos = &v["positive"];
+        assert_eq!(pos["p_kPa"].as_f64().unwrap(), 50.0);
+        assert!((pos["theta_deg"].as_f64().unwrap() - 10.0).abs() < 1e-12);
+        assert!((pos["tau_Nm"].as_f64().unwrap() - 0.2).abs() < 1e-12);
+        let expect = 0.2 * 10f64.to_radians() / (8.0 * std::f64::consts::PI * 625.0 * 40.0 * 1e-9);
+        assert!((pos["omega_J_m3"].as_f64().unwrap() - expect).abs() < 1e-9 * expect);
+        assert_eq!(pos["abs_values_used"], json!(true));
+        // vacuum branch: common pressure −20 (the less negative), τ interpolated to −0.02
+        let neg = &v["negative"];
+        assert_eq!(neg["p_kPa"].as_f64().unwrap(), -20.0);
+        assert!((neg["tau_Nm"].as_f64().unwrap() + 0.02).abs() < 1e-12);
+        assert!(neg["omega_J_m3"].as_f64().unwrap() > 0.0);
+        // the table holds the requested pressures both scenes reached (60 is beyond blocked)
+        let t = v["omega_by_pressure"].as_array().unwrap();
+        assert_eq!(t.iter().map(|x| x["p_kPa"].as_f64().unwrap()).collect::<Vec<_>>(), vec![-20.0, 40.0]);
+    }
+
+    #[test]
+    fn omega_is_signed_when_signs_differ() {
+        let free = scene("free", vec![rec(0.0, 0.0, 0.0), rec(10.0, -5.0, 0.0)]);
+        let blocked = scene("blocked", vec![rec(0.0, 0.0, 0.0), rec(10.0, 0.0, 0.05)]);
+        let v = omega_pair(&free, &blocked, &[10.0]);
+        assert_eq!(v["positive"]["abs_values_used"], json!(false));
+        assert!(v["positive"]["omega_J_m3"].as_f64().unwrap() < 0.0);
+        assert!(v["negative"].is_null());
+    }
+
+    #[test]
+    fn target_selection_keeps_targets_and_the_last_reached_state() {
+        let mut r = scene("free", vec![rec(-5.0, 0.0, 0.0), rec(-2.0, 0.0, 0.0), rec(0.0, 0.0, 0.0), rec(3.0, 0.0, 0.0), rec(10.000000000000002, 0.0, 0.0), rec(12.5, 0.0, 0.0)]);
+        select_steps(&mut r, &LoadPlan::Targets(vec![-5.0, 10.0, 20.0]));
+        let p: Vec<f64> = r.steps.iter().map(|s| s.p_kpa).collect();
+        assert_eq!(p, vec![-5.0, 0.0, 10.0, 12.5]);
+    }
+}

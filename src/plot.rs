@@ -1,0 +1,237 @@
+//! Line plots (PNG and SVG) with plotters and an embedded DejaVu Sans font: no system font
+//! libraries, identical output on every machine.
+//!
+//! [`line_plot`] draws any number of named series (lines with optional point markers) on linear
+//! axes and writes `<stem>.png` and `<stem>.svg`.
+
+use anyhow::{anyhow, bail, Result};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::Once;
+
+/// One named curve.
+#[derive(Clone, Debug)]
+pub struct Series {
+    pub name: String,
+    pub points: Vec<(f64, f64)>,
+    /// draw a marker at every point
+    pub markers: bool,
+    /// draw the connecting line
+    pub line: bool,
+}
+
+impl Series {
+    /// A line with markers.
+    pub fn new(name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Series { name: name.into(), points, markers: true, line: true }
+    }
+    /// Markers only (e.g. reference values).
+    pub fn markers_only(name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Series { name: name.into(), points, markers: true, line: false }
+    }
+}
+
+/// A plot: title, axis labels and series.
+#[derive(Clone, Debug)]
+pub struct LinePlot {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+    /// draw the y = 0 and x = 0 axes when inside the range
+    pub zero_axes: bool,
+}
+
+impl LinePlot {
+    pub fn new(title: impl Into<String>, x_label: impl Into<String>, y_label: impl Into<String>) -> Self {
+        LinePlot { title: title.into(), x_label: x_label.into(), y_label: y_label.into(), series: Vec::new(), zero_axes: true }
+    }
+    pub fn with(mut self, s: Series) -> Self {
+        self.series.push(s);
+        self
+    }
+}
+
+const FONT: &str = "sans-serif";
+const WIDTH: u32 = 900;
+const HEIGHT: u32 = 620;
+
+static FONT_INIT: Once = Once::new();
+
+fn register_font() -> Result<()> {
+    let mut ok = true;
+    FONT_INIT.call_once(|| {
+        ok = plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
+            && plotters::style::register_font(FONT, FontStyle::Bold, dejavu::sans::bold()).is_ok();
+    });
+    if !ok {
+        bail!("plot: the embedded DejaVu Sans font could not be loaded");
+    }
+    Ok(())
+}
+
+/// Distinct colours for up to 10 series (then repeats).
+fn colour(i: usize) -> RGBColor {
+    const C: [RGBColor; 10] = [
+        RGBColor(31, 119, 180),
+        RGBColor(214, 39, 40),
+        RGBColor(44, 160, 44),
+        RGBColor(255, 127, 14),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+        RGBColor(188, 189, 34),
+        RGBColor(23, 190, 207),
+    ];
+    C[i % C.len()]
+}
+
+/// Axis range with a 5 % margin; a degenerate range is widened to ±1 around its value.
+fn range(vals: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in vals {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    let span = hi - lo;
+    if span <= 1e-12 * (1.0 + lo.abs().max(hi.abs())) {
+        let pad = if lo.abs() > 0.0 { 0.1 * lo.abs() } else { 1.0 };
+        return Some((lo - pad, hi + pad));
+    }
+    Some((lo - 0.05 * span, hi + 0.05 * span))
+}
+
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, plot: &LinePlot) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot '{}': {e:?}", plot.title);
+    root.fill(&WHITE).map_err(err)?;
+    let pts = || plot.series.iter().flat_map(|s| s.points.iter()).filter(|p| p.0.is_finite() && p.1.is_finite());
+    let (x0, x1) = range(pts().map(|p| p.0)).unwrap_or((-1.0, 1.0));
+    let (y0, y1) = range(pts().map(|p| p.1)).unwrap_or((-1.0, 1.0));
+    let mut chart = ChartBuilder::on(&root)
+        .caption(&plot.title, (FONT, 22).into_font())
+        .margin(16)
+        .x_label_area_size(50)
+        .y_label_area_size(80)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc(plot.x_label.as_str())
+        .y_desc(plot.y_label.as_str())
+        .label_style((FONT, 15).into_font())
+        .axis_desc_style((FONT, 17).into_font())
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(err)?;
+    if plot.zero_axes {
+        let grey = RGBColor(90, 90, 90);
+        if y0 < 0.0 && y1 > 0.0 {
+            chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], grey.stroke_width(1))).map_err(err)?;
+        }
+        if x0 < 0.0 && x1 > 0.0 {
+            chart.draw_series(LineSeries::new([(0.0, y0), (0.0, y1)], grey.stroke_width(1))).map_err(err)?;
+        }
+    }
+    for (i, s) in plot.series.iter().enumerate() {
+        let c = colour(i);
+        let p: Vec<(f64, f64)> = s.points.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
+        let mut legend_done = false;
+        if s.line && !p.is_empty() {
+            chart
+                .draw_series(LineSeries::new(p.clone(), c.stroke_width(2)))
+                .map_err(err)?
+                .label(s.name.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+            legend_done = true;
+        }
+        if s.markers && !p.is_empty() {
+            if s.line {
+                chart.draw_series(p.iter().map(|&xy| Circle::new(xy, 3, c.filled()))).map_err(err)?;
+            } else {
+                let anno = chart.draw_series(p.iter().map(|&xy| TriangleMarker::new(xy, 7, c.filled()))).map_err(err)?;
+                if !legend_done {
+                    anno.label(s.name.as_str()).legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, c.filled()));
+                }
+            }
+        }
+    }
+    if plot.series.iter().any(|s| !s.name.is_empty()) {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(160, 160, 160))
+            .label_font((FONT, 15).into_font())
+            .position(legend_corner(plot, (x0, x1), (y0, y1)))
+            .draw()
+            .map_err(err)?;
+    }
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// The corner whose 35 % × 35 % box holds the fewest data points (ties: upper left first).
+fn legend_corner(plot: &LinePlot, (x0, x1): (f64, f64), (y0, y1): (f64, f64)) -> SeriesLabelPosition {
+    let corners = [
+        (SeriesLabelPosition::UpperLeft, false, true),
+        (SeriesLabelPosition::UpperRight, true, true),
+        (SeriesLabelPosition::LowerRight, true, false),
+        (SeriesLabelPosition::LowerLeft, false, false),
+    ];
+    let pts: Vec<(f64, f64)> = plot.series.iter().flat_map(|s| s.points.iter().copied()).collect();
+    let count = |right: bool, upper: bool| {
+        pts.iter()
+            .filter(|(x, y)| {
+                let fx = (x - x0) / (x1 - x0);
+                let fy = (y - y0) / (y1 - y0);
+                (if right { fx > 0.65 } else { fx < 0.35 }) && (if upper { fy > 0.65 } else { fy < 0.35 })
+            })
+            .count()
+    };
+    let mut best = (usize::MAX, SeriesLabelPosition::UpperLeft);
+    for (pos, right, upper) in corners {
+        let c = count(right, upper);
+        if c < best.0 {
+            best = (c, pos);
+        }
+    }
+    best.1
+}
+
+/// Write `<stem>.png` and `<stem>.svg`; returns the two paths.
+pub fn line_plot(stem: &Path, plot: &LinePlot) -> Result<[PathBuf; 2]> {
+    register_font()?;
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    draw(BitMapBackend::new(&png, (WIDTH, HEIGHT)).into_drawing_area(), plot)?;
+    draw(SVGBackend::new(&svg, (WIDTH, HEIGHT)).into_drawing_area(), plot)?;
+    Ok([png, svg])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_png_and_svg() {
+        let dir = std::env::temp_dir().join(format!("twistopt-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let plot = LinePlot::new("test θ(p)", "p (kPa)", "θ (°)")
+            .with(Series::new("a", vec![(-10.0, -1.0), (0.0, 0.0), (10.0, 2.0)]))
+            .with(Series::markers_only("ref", vec![(5.0, 1.0)]))
+            .with(Series::new("flat", vec![(1.0, 3.0), (2.0, 3.0)]));
+        let [png, svg] = line_plot(&dir.join("t"), &plot).unwrap();
+        let png_bytes = std::fs::read(&png).unwrap();
+        assert_eq!(&png_bytes[..8], b"\x89PNG\r\n\x1a\n");
+        let s = std::fs::read_to_string(&svg).unwrap();
+        assert!(s.starts_with("<svg") && s.contains("θ (°)"), "svg text");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

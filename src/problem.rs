@@ -1,0 +1,542 @@
+//! Problem files for `twistopt evaluate`: one design, material, load, scenes, fidelity and
+//! outputs in a TOML file.
+//!
+//! # Schema
+//!
+//! ```toml
+//! [design]                      # required
+//! r_mm = 8.660254037844386      # arc radius of the horseshoe section, mm
+//! l_mm = 10.0                   # waist radius of the bellows profile, mm
+//! alpha_deg = 60.0              # pre-twist of the top face, degrees
+//! range = "table1"              # "table1" (the letter's Table I box, default) | "extended"
+//!
+//! [material]                    # optional; Neo-Hookean
+//! mu_MPa = 0.34                 # shear modulus (default 0.34, the letter's Hei-Cast 8400)
+//! kappa_over_mu = 1000          # bulk / shear modulus (default 1000, nearly incompressible)
+//!
+//! [load]                        # required: exactly one of
+//! pressures_kPa = [-68, -30, 30, 71]  # cavity pressures (negative = vacuum); each sign is a branch
+//!                                     # ramped from 0 through its targets in order of magnitude
+//! # p_max_kPa = 71              # ramp 0 → p_max (> 0) and record every converged step
+//!
+//! [scenes]                      # optional
+//! run = ["free", "blocked"]     # any of free, blocked, pure-twist, pure-twist-blocked (default
+//!                               # free + blocked)
+//! full = false                  # true: full 360° model instead of the 120° sector (also --full)
+//! ballooning_limit_mm = 28.75   # stop a ramp when the max deformed radius exceeds this (1.15·R0)
+//!
+//! [torque_rotation]             # optional: the letter's Fig. 4b (torque vs prescribed rotation)
+//! pressures_kPa = [30, 71]      # one line per pressure (non-zero)
+//! points = 5                    # rotations from 0 to the free rotation (1 … 50)
+//!
+//! [fidelity]                    # optional; at most one of
+//! preset = "default"            # "coarse" | "default" | "fine" (default "default")
+//! # mesh = "48x16x2"            # N_around x N_along x N_through (Hex27)
+//!
+//! [output]                      # optional
+//! vtu = true                    # ParaView series <scene>.pvd + one VTU per recorded step
+//! ```
+//!
+//! The torque-rotation scene runs in the combined mode (axial motion free) when `free` and
+//! `blocked` are both run, and in the pure-twist mode when `pure-twist` and
+//! `pure-twist-blocked` are both run; it is an error to request it otherwise.
+//!
+//! Overrides `--set section.key=value` are applied to the TOML table before it is deserialised;
+//! the value is parsed as TOML (`--set load.pressures_kPa=[10,20]`, `--set design.alpha_deg=120`)
+//! and taken as a plain string when it is not valid TOML (`--set fidelity.preset=coarse`).
+//! Unknown sections or keys, wrong types and out-of-range values are errors on one line naming
+//! the field (`design.r_mm`, `load.p_max_kPa`, …).
+
+use anyhow::{anyhow, bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
+use crate::meshing::MeshSpec;
+use crate::scene::{SceneKind, SceneOptions};
+use twistopt_solver::material::{Material, NeoHookean};
+
+/// A complete problem (the file after overrides, with defaults filled in).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Problem {
+    pub design: DesignSection,
+    #[serde(default)]
+    pub material: MaterialSection,
+    pub load: LoadSection,
+    #[serde(default)]
+    pub scenes: ScenesSection,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torque_rotation: Option<TorqueRotationSection>,
+    #[serde(default)]
+    pub fidelity: FidelitySection,
+    #[serde(default)]
+    pub output: OutputSection,
+}
+
+/// Which design box the design is validated against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RangeName {
+    #[default]
+    Table1,
+    Extended,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DesignSection {
+    pub r_mm: f64,
+    pub l_mm: f64,
+    pub alpha_deg: f64,
+    #[serde(default)]
+    pub range: RangeName,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSection {
+    #[serde(rename = "mu_MPa", default = "default_mu")]
+    pub mu_mpa: f64,
+    #[serde(default = "default_kappa_over_mu")]
+    pub kappa_over_mu: f64,
+}
+
+fn default_mu() -> f64 {
+    0.34
+}
+fn default_kappa_over_mu() -> f64 {
+    1000.0
+}
+
+impl Default for MaterialSection {
+    fn default() -> Self {
+        MaterialSection { mu_mpa: default_mu(), kappa_over_mu: default_kappa_over_mu() }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadSection {
+    #[serde(rename = "pressures_kPa", default, skip_serializing_if = "Option::is_none")]
+    pub pressures_kpa: Option<Vec<f64>>,
+    #[serde(rename = "p_max_kPa", default, skip_serializing_if = "Option::is_none")]
+    pub p_max_kpa: Option<f64>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenesSection {
+    #[serde(default = "default_scenes")]
+    pub run: Vec<String>,
+    #[serde(default)]
+    pub full: bool,
+    #[serde(default = "default_ballooning")]
+    pub ballooning_limit_mm: f64,
+}
+
+fn default_scenes() -> Vec<String> {
+    vec!["free".into(), "blocked".into()]
+}
+fn default_ballooning() -> f64 {
+    1.15 * crate::geometry::R0_ENVELOPE
+}
+
+impl Default for ScenesSection {
+    fn default() -> Self {
+        ScenesSection { run: default_scenes(), full: false, ballooning_limit_mm: default_ballooning() }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TorqueRotationSection {
+    #[serde(rename = "pressures_kPa")]
+    pub pressures_kpa: Vec<f64>,
+    #[serde(default = "default_points")]
+    pub points: usize,
+}
+
+fn default_points() -> usize {
+    5
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FidelitySection {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preset: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
+}
+
+impl Default for FidelitySection {
+    fn default() -> Self {
+        FidelitySection { preset: Some("default".into()), mesh: None }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSection {
+    #[serde(default = "default_true")]
+    pub vtu: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+impl Default for OutputSection {
+    fn default() -> Self {
+        OutputSection { vtu: true }
+    }
+}
+
+/// How the pressure is applied.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LoadPlan {
+    /// Ramp through these targets (both signs allowed); record the states at the targets.
+    Targets(Vec<f64>),
+    /// Ramp 0 → p_max and record every converged step.
+    Ramp(f64),
+}
+
+impl LoadPlan {
+    /// Targets for [`crate::scene::run_pressure`].
+    pub fn targets(&self) -> Vec<f64> {
+        match self {
+            LoadPlan::Targets(t) => t.clone(),
+            LoadPlan::Ramp(p) => vec![*p],
+        }
+    }
+}
+
+/// A validated problem: everything needed to run the scenes.
+pub struct Validated {
+    pub geometry: ActuatorGeometry,
+    pub mesh: MeshSpec,
+    pub material: Material,
+    pub scenes: Vec<SceneKind>,
+    pub load: LoadPlan,
+}
+
+impl Problem {
+    /// Read a problem file and apply `--set` overrides (`section.key=value`).
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Problem> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read problem file {}", path.display()))?;
+        Self::from_str_with(&text, &path.display().to_string(), overrides)
+    }
+
+    /// Parse problem text (`origin` names it in error messages) and apply overrides.
+    pub fn from_str_with(text: &str, origin: &str, overrides: &[String]) -> Result<Problem> {
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| anyhow!("{origin}: {}", located(&e, text)))?;
+        for o in overrides {
+            apply_override(&mut table, o)?;
+        }
+        // Deserialise through the text of the merged table so that errors carry a position,
+        // which names the section and key.
+        let merged = toml::to_string(&table).map_err(|e| anyhow!("{origin}: cannot re-serialise the problem: {e}"))?;
+        toml::from_str::<Problem>(&merged).map_err(|e| anyhow!("{origin}: {}", named(&e, &merged)))
+    }
+
+    /// Check every field; the first problem found is returned as a one-line error naming it.
+    pub fn validate(&self) -> Result<Validated> {
+        let d = &self.design;
+        let policy = match d.range {
+            RangeName::Table1 => RangePolicy::TableI,
+            RangeName::Extended => RangePolicy::Extended,
+        };
+        let geometry = ActuatorGeometry::new(&Design::new(d.r_mm, d.l_mm, d.alpha_deg), policy).map_err(|e| {
+            // the geometry's hint names the CLI flag of `geometry`; here the switch is design.range
+            let msg = e.to_string().replace("pass --extended-range / RangePolicy::Extended", "set design.range = \"extended\"");
+            anyhow!("design.{msg}")
+        })?;
+        let m = &self.material;
+        let material: Material = NeoHookean::with_ratio(m.mu_mpa, m.kappa_over_mu)
+            .map_err(|_| {
+                if !(m.mu_mpa.is_finite() && m.mu_mpa > 0.0) {
+                    anyhow!("material.mu_MPa = {} is not allowed (shear modulus must be finite and > 0)", m.mu_mpa)
+                } else {
+                    anyhow!("material.kappa_over_mu = {} is not allowed (must be finite and >= 1)", m.kappa_over_mu)
+                }
+            })?
+            .into();
+        let load = match (&self.load.pressures_kpa, self.load.p_max_kpa) {
+            (Some(_), Some(_)) => bail!("load: give either load.pressures_kPa or load.p_max_kPa, not both"),
+            (None, None) => bail!("load: missing load.pressures_kPa (list of kPa) or load.p_max_kPa (ramp end, kPa)"),
+            (Some(list), None) => {
+                if list.is_empty() {
+                    bail!("load.pressures_kPa is empty (give at least one non-zero pressure in kPa)");
+                }
+                check_pressures("load.pressures_kPa", list)?;
+                let mut t = list.clone();
+                t.sort_by(f64::total_cmp);
+                t.dedup();
+                LoadPlan::Targets(t)
+            }
+            (None, Some(p)) => {
+                if !(p.is_finite() && p > 0.0) {
+                    bail!("load.p_max_kPa = {p} must be finite and > 0 (use load.pressures_kPa for vacuum)");
+                }
+                LoadPlan::Ramp(p)
+            }
+        };
+        let s = &self.scenes;
+        if s.run.is_empty() {
+            bail!("scenes.run is empty (choose from free, blocked, pure-twist, pure-twist-blocked)");
+        }
+        let mut scenes = Vec::new();
+        for name in &s.run {
+            let k = SceneKind::parse(name).ok_or_else(|| {
+                anyhow!("scenes.run: unknown scene '{name}' (expected free, blocked, pure-twist or pure-twist-blocked)")
+            })?;
+            if scenes.contains(&k) {
+                bail!("scenes.run: scene '{name}' is listed twice");
+            }
+            scenes.push(k);
+        }
+        if !(s.ballooning_limit_mm.is_finite() && s.ballooning_limit_mm > crate::geometry::R_TUBE) {
+            bail!(
+                "scenes.ballooning_limit_mm = {} must be finite and larger than the undeformed radius {} mm",
+                s.ballooning_limit_mm,
+                crate::geometry::R_TUBE
+            );
+        }
+        if let Some(tr) = &self.torque_rotation {
+            if tr.pressures_kpa.is_empty() {
+                bail!("torque_rotation.pressures_kPa is empty (give at least one non-zero pressure in kPa)");
+            }
+            check_pressures("torque_rotation.pressures_kPa", &tr.pressures_kpa)?;
+            if !(1..=50).contains(&tr.points) {
+                bail!("torque_rotation.points = {} must be between 1 and 50", tr.points);
+            }
+            let has = |k: SceneKind| scenes.contains(&k);
+            if !(has(SceneKind::Free) && has(SceneKind::Blocked)) && !(has(SceneKind::PureTwist) && has(SceneKind::PureTwistBlocked)) {
+                bail!("torque_rotation needs scenes.run to include both free and blocked (combined mode) or both pure-twist and pure-twist-blocked");
+            }
+        }
+        let f = &self.fidelity;
+        let mesh = match (&f.preset, &f.mesh) {
+            (Some(_), Some(_)) => bail!("fidelity: give either fidelity.preset or fidelity.mesh, not both"),
+            (Some(p), None) => MeshSpec::preset(p).map_err(|e| anyhow!("fidelity.preset: {e}"))?,
+            (None, Some(m)) => {
+                if !m.trim().chars().next().is_some_and(|c| c.is_ascii_digit()) {
+                    bail!("fidelity.mesh = '{m}' is not <Na>x<Nz>x<Nt> (e.g. 48x16x2; use fidelity.preset for a preset name)");
+                }
+                MeshSpec::parse(m).map_err(|e| anyhow!("fidelity.mesh: {e}"))?
+            }
+            (None, None) => MeshSpec::preset("default").map_err(|e| anyhow!("fidelity: {e}"))?,
+        };
+        Ok(Validated { geometry, mesh, material, scenes, load })
+    }
+
+    /// Scene options for the validated problem.
+    pub fn scene_options(&self, v: &Validated) -> SceneOptions {
+        let mut o = SceneOptions::new(v.mesh, v.material);
+        o.sector = !self.scenes.full;
+        o.ballooning_limit_mm = self.scenes.ballooning_limit_mm;
+        o.keep_fields = self.output.vtu;
+        o
+    }
+}
+
+fn check_pressures(field: &str, list: &[f64]) -> Result<()> {
+    for p in list {
+        if !p.is_finite() {
+            bail!("{field} contains a non-finite pressure ({p})");
+        }
+        if *p == 0.0 {
+            bail!("{field} contains 0 (the unloaded state is always recorded; give non-zero pressures)");
+        }
+        if p.abs() > 1.0e4 {
+            bail!("{field} contains {p} kPa; the allowed magnitude is at most 10000 kPa");
+        }
+    }
+    Ok(())
+}
+
+/// Apply one `section.key=value` override to the table.
+pub fn apply_override(table: &mut toml::Table, o: &str) -> Result<()> {
+    let (path, value) = o.split_once('=').ok_or_else(|| anyhow!("--set '{o}': expected section.key=value"))?;
+    let keys: Vec<&str> = path.trim().split('.').map(str::trim).collect();
+    if keys.len() < 2 || keys.iter().any(|k| k.is_empty()) {
+        bail!("--set '{o}': expected section.key=value (e.g. design.alpha_deg=120)");
+    }
+    let value = value.trim();
+    let parsed = match toml::from_str::<toml::Table>(&format!("v = {value}")) {
+        Ok(mut t) => t.remove("v").ok_or_else(|| anyhow!("--set '{o}': no value"))?,
+        Err(_) => {
+            if value.is_empty() {
+                bail!("--set '{o}': empty value");
+            }
+            toml::Value::String(value.to_string())
+        }
+    };
+    let mut t = table;
+    for k in &keys[..keys.len() - 1] {
+        let entry = t.entry(k.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        t = entry.as_table_mut().ok_or_else(|| anyhow!("--set '{o}': '{k}' is not a section"))?;
+    }
+    let last = keys[keys.len() - 1];
+    // setting one of two alternatives replaces the other (a list overrides a ramp and vice versa)
+    for (a, b) in [("pressures_kPa", "p_max_kPa"), ("preset", "mesh")] {
+        if keys.len() == 2 && (keys[0] == "load" || keys[0] == "fidelity") {
+            if last == a {
+                t.remove(b);
+            } else if last == b {
+                t.remove(a);
+            }
+        }
+    }
+    t.insert(last.to_string(), parsed);
+    Ok(())
+}
+
+/// 1-based line and column of a byte offset.
+fn line_col(text: &str, at: usize) -> (usize, usize) {
+    let at = at.min(text.len());
+    let before = &text[..at];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rfind('\n').map(|i| at - i).unwrap_or(at + 1);
+    (line, col)
+}
+
+/// A parse error on one line with its position.
+fn located(e: &toml::de::Error, text: &str) -> String {
+    let msg = e.message().replace('\n', " ");
+    match e.span() {
+        Some(s) => {
+            let (l, c) = line_col(text, s.start);
+            format!("line {l}, column {c}: {msg}")
+        }
+        None => msg,
+    }
+}
+
+/// A deserialisation error of the merged table on one line, naming `section.key` from the
+/// error's position in the re-serialised text.
+fn named(e: &toml::de::Error, text: &str) -> String {
+    let msg = e.message().replace('\n', " ");
+    let Some(span) = e.span() else { return msg };
+    if span.start == 0 && span.end >= text.trim_end().len() {
+        // about the whole document: a missing or unknown top-level section
+        if let Some(f) = msg.strip_prefix("missing field ") {
+            return format!("missing section [{}]", f.trim_matches('`'));
+        }
+        return msg;
+    }
+    let start = span.start.min(text.len());
+    let line_start = text[..start].rfind('\n').map(|i| i + 1).unwrap_or(0);
+    let line_end = text[start..].find('\n').map(|i| start + i).unwrap_or(text.len());
+    let line = text[line_start..line_end].trim();
+    let section = text[..line_start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('[') && l.ends_with(']'))
+        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+    if line.starts_with('[') {
+        // the error is about a whole section (missing field, unknown section)
+        let sec = line.trim_matches(|c| c == '[' || c == ']').trim();
+        if msg.contains("unknown field") {
+            return format!("unknown section [{sec}]: {msg}");
+        }
+        return format!("[{sec}]: {msg}");
+    }
+    match (line.split_once('='), section) {
+        (Some((k, _)), Some(sec)) => format!("{sec}.{}: {msg}", k.trim().trim_matches('"')),
+        (Some((k, _)), None) => {
+            let k = k.trim().trim_matches('"');
+            if msg.contains("unknown field") {
+                format!("unknown section '{k}': {msg}")
+            } else {
+                format!("{k}: {msg}")
+            }
+        }
+        _ => msg,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BASE: &str = "[design]\nr_mm = 10\nl_mm = 12\nalpha_deg = 90\n[load]\npressures_kPa = [10, 20]\n";
+
+    #[test]
+    fn defaults_and_overrides() {
+        let p = Problem::from_str_with(BASE, "t", &[]).unwrap();
+        assert_eq!(p.material.mu_mpa, 0.34);
+        assert_eq!(p.material.kappa_over_mu, 1000.0);
+        assert_eq!(p.scenes.run, vec!["free", "blocked"]);
+        assert!((p.scenes.ballooning_limit_mm - 28.75).abs() < 1e-12);
+        assert_eq!(p.fidelity.preset.as_deref(), Some("default"));
+        assert!(p.output.vtu);
+        let p = Problem::from_str_with(
+            BASE,
+            "t",
+            &["design.alpha_deg=120".into(), "load.p_max_kPa=50".into(), "fidelity.preset=coarse".into(), "scenes.run=[\"pure-twist\"]".into()],
+        )
+        .unwrap();
+        assert_eq!(p.design.alpha_deg, 120.0);
+        assert_eq!(p.load.p_max_kpa, Some(50.0));
+        assert_eq!(p.load.pressures_kpa, None);
+        assert_eq!(p.fidelity.preset.as_deref(), Some("coarse"));
+        let v = p.validate().unwrap();
+        assert_eq!(v.load, LoadPlan::Ramp(50.0));
+        assert_eq!(v.scenes, vec![SceneKind::PureTwist]);
+        assert_eq!(v.mesh.size_string(), "24x8x1");
+    }
+
+    fn err(text: &str, sets: &[&str]) -> String {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        match Problem::from_str_with(text, "t", &sets).and_then(|p| p.validate().map(|_| ())) {
+            Ok(()) => panic!("expected an error for {text:?} {sets:?}"),
+            Err(e) => format!("{e:#}"),
+        }
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let e = err(BASE, &["design.r_m=3"]);
+        assert!(e.contains("design.r_m") && e.contains("unknown field"), "{e}");
+        let e = err(BASE, &["design.alpha_deg=\"abc\""]);
+        assert!(e.contains("design.alpha_deg"), "{e}");
+        let e = err(BASE, &["desing.r_mm=3"]);
+        assert!(e.contains("desing"), "{e}");
+        let e = err(BASE, &["design.r_mm=3"]);
+        assert!(e.contains("r_mm"), "{e}");
+        let e = err(BASE, &["load.pressures_kPa=[]"]);
+        assert!(e.contains("load.pressures_kPa"), "{e}");
+        let e = err(BASE, &["load.p_max_kPa=-5"]);
+        assert!(e.contains("load.p_max_kPa"), "{e}");
+        let e = err(BASE, &["load.p_max_kPa=nan"]);
+        assert!(e.contains("load.p_max_kPa"), "{e}");
+        let e = err(BASE, &["scenes.run=[\"twist\"]"]);
+        assert!(e.contains("scenes.run") && e.contains("twist"), "{e}");
+        let e = err(BASE, &["fidelity.preset=huge"]);
+        assert!(e.contains("fidelity.preset"), "{e}");
+        let e = err(BASE, &["fidelity.mesh=40x16x2"]);
+        assert!(e.contains("fidelity.mesh") && e.contains("n_around"), "{e}");
+        let e = err(BASE, &["material.mu_MPa=0"]);
+        assert!(e.contains("material.mu_MPa"), "{e}");
+        let e = err(BASE, &["material.kappa_over_mu=0.5"]);
+        assert!(e.contains("material.kappa_over_mu"), "{e}");
+        let e = err(BASE, &["torque_rotation.pressures_kPa=[10]", "scenes.run=[\"free\"]"]);
+        assert!(e.contains("torque_rotation"), "{e}");
+        let e = err("[design]\nr_mm = 10\nl_mm = 12\n[load]\np_max_kPa = 5\n", &[]);
+        assert!(e.contains("alpha_deg"), "{e}");
+        let e = err("[design]\nr_mm = 10\nl_mm = 12\nalpha_deg = 90\n", &[]);
+        assert!(e.contains("missing section [load]"), "{e}");
+        let e = err(BASE, &["design.r_mm=3"]);
+        assert!(e.starts_with("design.r_mm = 3") && e.contains("design.range"), "{e}");
+        let e = err("[design\nr_mm = 10\n", &[]);
+        assert!(e.contains("line 1"), "{e}");
+        let e = err(BASE, &["bogus"]);
+        assert!(e.contains("--set"), "{e}");
+        for e in [err(BASE, &["design.r_m=3"]), err("[design\n", &[])] {
+            assert_eq!(e.lines().count(), 1, "{e}");
+        }
+    }
+}

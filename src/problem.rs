@@ -419,7 +419,7 @@ fn located(e: &toml::de::Error, text: &str) -> String {
 fn named(e: &toml::de::Error, text: &str) -> String {
     let msg = e.message().replace('\n', " ");
     let Some(span) = e.span() else { return msg };
-    if span.start == 0 && span.end >= text.trim_end().len() {
+    if span.start == 0 && (span.end == 0 || span.end >= text.trim_end().len()) {
         // about the whole document: a missing or unknown top-level section
         if let Some(f) = msg.strip_prefix("missing field ") {
             return format!("missing section [{}]", f.trim_matches('`'));

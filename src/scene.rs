@@ -30,6 +30,15 @@ use twistopt_solver::material::Material;
 use twistopt_solver::model::{resultant, Assembled, Loads, Model, ModelError};
 use twistopt_solver::solve::{follow_path, PathStatus, StepOptions};
 
+/// Default bulk-to-shear modulus ratio κ/μ. Measured on the paper example (coarse sector, 40 kPa):
+/// going from κ/μ = 300 to 3000 changes θ by 0.12 %, τ by 0.16 %, the axial displacement by
+/// 0.43 % and the cavity volume by 0.08 % (a test keeps this under 0.5 %), while Newton needs
+/// 3.4× fewer iterations than at 3000.
+pub const DEFAULT_KAPPA_OVER_MU: f64 = 300.0;
+
+/// The letter's shear modulus of Hei-Cast 8400 (MPa).
+pub const MU_HEICAST_MPA: f64 = 0.34;
+
 /// The four boundary-condition scenes of the letter.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]

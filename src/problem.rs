@@ -419,7 +419,7 @@ fn located(e: &toml::de::Error, text: &str) -> String {
 fn named(e: &toml::de::Error, text: &str) -> String {
     let msg = e.message().replace('\n', " ");
     let Some(span) = e.span() else { return msg };
-    if span.start == 0 && (span.end == 0 || span.end >= text.trim_end().len()) {
+    if span.start == 0 && span.end == 0 {
         // about the whole document: a missing or unknown top-level section
         if let Some(f) = msg.strip_prefix("missing field ") {
             return format!("missing section [{}]", f.trim_matches('`'));
@@ -529,6 +529,8 @@ mod tests {
         assert!(e.contains("alpha_deg"), "{e}");
         let e = err("[design]\nr_mm = 10\nl_mm = 12\nalpha_deg = 90\n", &[]);
         assert!(e.contains("missing section [load]"), "{e}");
+        let e = err("[design]\nr_mm = 10\nl_mm = 12\n", &[]);
+        assert!(e.contains("[design]") && e.contains("alpha_deg"), "{e}");
         let e = err(BASE, &["design.r_mm=3"]);
         assert!(e.starts_with("design.r_mm = 3") && e.contains("design.range"), "{e}");
         let e = err("[design\nr_mm = 10\n", &[]);

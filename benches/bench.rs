@@ -32,8 +32,126 @@ fn time<F: FnMut()>(runs: usize, mut f: F) -> (f64, f64, f64) {
     (median(v), min, max)
 }
 
+/// Sections to run: all, or those named on the command line (`cargo bench --bench bench -- newton_step`).
+fn wanted(name: &str) -> bool {
+    let args: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
+    args.is_empty() || args.iter().any(|a| a == name)
+}
+
+fn merge(key: &str, section: Value) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/benchmarks/results.json");
+    let mut root: Value = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+        .unwrap_or_else(|| json!({}));
+    if !root.is_object() {
+        root = json!({});
+    }
+    root.as_object_mut().expect("object").insert(key.into(), section);
+    std::fs::create_dir_all(path.parent().expect("parent")).expect("create studies/benchmarks");
+    std::fs::write(&path, serde_json::to_string_pretty(&root).expect("json") + "\n").expect("write results.json");
+    println!("wrote {key} to {}", path.display());
+}
+
 fn main() {
     let geom = ActuatorGeometry::new(&Design::paper_example(), RangePolicy::TableI).expect("paper example is valid");
+    if wanted("mesh_generation") {
+        mesh_generation(&geom);
+    }
+    if wanted("newton_step") {
+        newton_step(&geom);
+    }
+    if wanted("evaluation") {
+        evaluation(&geom);
+    }
+}
+
+/// Cost of one Newton step of the `free` scene (sector model) at a loaded state (20 kPa):
+/// assembly of residual + tangent, Cholesky factorisation (symbolic analysis reused), solve.
+fn newton_step(geom: &ActuatorGeometry) {
+    use twistopt::scene::{SceneKind, SceneModel, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::material::NeoHookean;
+    let mut entries = serde_json::Map::new();
+    for &(name, ..) in MESH_PRESETS {
+        let spec = MeshSpec::preset(name).expect("preset");
+        let opts = SceneOptions::new(spec, NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material").into());
+        let sm = SceneModel::build(geom, &opts, SceneKind::Free).expect("scene");
+        let q = vec![0.0; sm.model.n_reduced()];
+        let loads = sm.loads(5.0, 0.0);
+        let runs = if name == "fine" { 3 } else { 7 };
+        let (ta, _, _) = time(runs, || {
+            std::hint::black_box(sm.model.assemble(&q, &loads, true).expect("assembly"));
+        });
+        let (tr, _, _) = time(runs, || {
+            std::hint::black_box(sm.model.assemble(&q, &loads, false).expect("assembly"));
+        });
+        let a = sm.model.assemble(&q, &loads, true).expect("assembly");
+        let k = a.k.clone().expect("tangent");
+        let (tf, _, _) = time(runs, || {
+            std::hint::black_box(sm.model.factor(&k).ok());
+        });
+        let fac = sm.model.factor(&k);
+        let ts = match &fac {
+            Ok(f) => time(runs, || {
+                std::hint::black_box(f.solve(&a.r).expect("solve"));
+            })
+            .0,
+            Err(_) => f64::NAN,
+        };
+        println!(
+            "newton_step {name:8} dofs {:7} nnz {:9}: assembly (r+K) {:.1} ms, residual only {:.1} ms, factorisation {:.1} ms, solve {:.2} ms",
+            sm.model.n_reduced(),
+            sm.model.nnz(),
+            ta * 1e3,
+            tr * 1e3,
+            tf * 1e3,
+            ts * 1e3
+        );
+        entries.insert(
+            name.to_string(),
+            json!({
+                "mesh": spec.size_string(), "sector": true, "dofs": sm.model.n_reduced(), "nnz_upper": sm.model.nnz(),
+                "elements": sm.model.mesh.n_elements(),
+                "assembly_residual_and_tangent_ms": ta * 1e3, "assembly_residual_only_ms": tr * 1e3,
+                "cholesky_factorisation_ms": tf * 1e3, "solve_ms": if ts.is_finite() { json!(ts * 1e3) } else { json!(null) },
+            }),
+        );
+    }
+    merge(
+        "newton_step",
+        json!({
+            "description": "one Newton step of the free scene on the 120° sector of the paper example at 5 kPa (state u = 0): median wall time of assembly, Cholesky factorisation (symbolic analysis reused) and solve; release build, rayon + faer on all cores",
+            "threads": rayon::current_num_threads(),
+            "presets": Value::Object(entries),
+        }),
+    );
+}
+
+/// Wall time of a default-fidelity free + blocked evaluation of the paper example up to 60 kPa.
+fn evaluation(geom: &ActuatorGeometry) {
+    use twistopt::scene::{run_pressure, SceneKind, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::material::NeoHookean;
+    let opts = SceneOptions::new(MeshSpec::preset("default").expect("preset"), NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material").into());
+    let t = Instant::now();
+    let mut scenes = serde_json::Map::new();
+    for kind in [SceneKind::Free, SceneKind::Blocked] {
+        let r = run_pressure(geom, &opts, kind, &[60.0]).expect("scene");
+        let last = r.steps.last().expect("steps");
+        println!("evaluation {}: {} in {:.2} s, {} Newton iterations, θ = {:.3}°, τ = {:.4} N·m", r.scene, r.status, r.wall_time_s, r.newton_iterations, last.theta_deg, last.tau_nm);
+        scenes.insert(r.scene.clone(), json!({"status": r.status, "wall_time_s": r.wall_time_s, "newton_iterations": r.newton_iterations, "steps": r.steps.len(), "dofs": r.dofs, "theta_deg": last.theta_deg, "tau_Nm": last.tau_nm, "p_kPa": last.p_kpa}));
+    }
+    merge(
+        "evaluation",
+        json!({
+            "description": "paper example, default fidelity (sector, Q2/P1), free + blocked ramps 0 → 60 kPa, release build",
+            "total_wall_time_s": t.elapsed().as_secs_f64(),
+            "scenes": Value::Object(scenes),
+        }),
+    );
+}
+
+fn mesh_generation(geom: &ActuatorGeometry) {
+    let geom = geom.clone();
     let mut entries = serde_json::Map::new();
     for &(name, ..) in MESH_PRESETS {
         let spec = MeshSpec::preset(name).expect("preset");
@@ -78,17 +196,5 @@ fn main() {
         "machine": format!("{} cores available", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)),
         "presets": Value::Object(entries),
     });
-
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/benchmarks/results.json");
-    let mut root: Value = std::fs::read_to_string(&path)
-        .ok()
-        .and_then(|s| serde_json::from_str(&s).ok())
-        .unwrap_or_else(|| json!({}));
-    if !root.is_object() {
-        root = json!({});
-    }
-    root.as_object_mut().expect("object").insert("mesh_generation".into(), section);
-    std::fs::create_dir_all(path.parent().expect("parent")).expect("create studies/benchmarks");
-    std::fs::write(&path, serde_json::to_string_pretty(&root).expect("json") + "\n").expect("write results.json");
-    println!("wrote {}", path.display());
+    merge("mesh_generation", section);
 }

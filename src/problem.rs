@@ -12,7 +12,8 @@
 //!
 //! [material]                    # optional; Neo-Hookean
 //! mu_MPa = 0.34                 # shear modulus (default 0.34, the letter's Hei-Cast 8400)
-//! kappa_over_mu = 1000          # bulk / shear modulus (default 1000, nearly incompressible)
+//! kappa_over_mu = 300           # bulk / shear modulus (default scene::DEFAULT_KAPPA_OVER_MU = 300:
+//!                               # θ, τ within 0.5 % of κ/μ = 3000)
 //!
 //! [load]                        # required: exactly one of
 //! pressures_kPa = [-68, -30, 30, 71]  # cavity pressures (negative = vacuum); each sign is a branch
@@ -103,10 +104,10 @@ pub struct MaterialSection {
 }
 
 fn default_mu() -> f64 {
-    0.34
+    crate::scene::MU_HEICAST_MPA
 }
 fn default_kappa_over_mu() -> f64 {
-    1000.0
+    crate::scene::DEFAULT_KAPPA_OVER_MU
 }
 
 impl Default for MaterialSection {
@@ -468,7 +469,7 @@ mod tests {
     fn defaults_and_overrides() {
         let p = Problem::from_str_with(BASE, "t", &[]).unwrap();
         assert_eq!(p.material.mu_mpa, 0.34);
-        assert_eq!(p.material.kappa_over_mu, 1000.0);
+        assert_eq!(p.material.kappa_over_mu, crate::scene::DEFAULT_KAPPA_OVER_MU);
         assert_eq!(p.scenes.run, vec!["free", "blocked"]);
         assert!((p.scenes.ballooning_limit_mm - 28.75).abs() < 1e-12);
         assert_eq!(p.fidelity.preset.as_deref(), Some("default"));

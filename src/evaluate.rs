@@ -216,9 +216,14 @@ fn write_scene_vtu(dir: &Path, r: &SceneResult) -> Result<Vec<PathBuf>> {
 }
 
 fn scene_json(r: &SceneResult) -> Value {
+    // how far each pressure branch got (`status` is the positive branch's end, or the vacuum
+    // branch's when the positive one completed)
+    let pmax = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::max);
+    let pmin = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::min);
     json!({
         "status": r.status,
         "cause": r.cause,
+        "p_reached_kPa": {"positive": pmax, "negative": pmin},
         "steps": r.steps,
         "dofs": r.dofs,
         "elements": r.elements,
@@ -255,25 +260,26 @@ fn failed_scene(kind: SceneKind, cause: String) -> SceneResult {
 }
 
 /// Run a problem and write every output to `out`. `log` receives progress lines.
-pub fn evaluate(problem: &Problem, out: &Path, mut log: impl FnMut(&str)) -> Result<Evaluation> {
+pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Result<Evaluation> {
     let v: Validated = problem.validate()?;
     let opts = problem.scene_options(&v);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create output directory {}", out.display()))?;
     let mut files = Vec::new();
     let targets = v.load.targets();
 
-    // scenes
-    let mut results: Vec<SceneResult> = Vec::new();
-    for &kind in &v.scenes {
+    // scenes: independent models, run concurrently (as many at a time as rayon has threads;
+    // the sparse factorisation is sequential, so this is where a second core pays off)
+    let run_one = |kind: SceneKind| -> SceneResult {
         log(&format!("scene {} ...", kind.name()));
         let mut r = match run_pressure(&v.geometry, &opts, kind, &targets) {
             Ok(r) => r,
             Err(e) => failed_scene(kind, format!("{e}").replace('\n', " ")),
         };
         select_steps(&mut r, &v.load);
-        let last = r.steps.iter().map(|s| s.p_kpa).fold(0.0, |a: f64, p| if p.abs() > a.abs() { p } else { a });
+        let pmax = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::max);
+        let pmin = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::min);
         log(&format!(
-            "scene {}: {}{}; {} steps recorded (|p| up to {last} kPa), {} dofs, {:.1} s",
+            "scene {}: {}{}; {} steps recorded, p from {pmin} to {pmax} kPa, {} dofs, {:.1} s",
             r.scene,
             r.status,
             if r.cause.is_empty() { String::new() } else { format!(" ({})", r.cause) },
@@ -281,13 +287,28 @@ pub fn evaluate(problem: &Problem, out: &Path, mut log: impl FnMut(&str)) -> Res
             r.dofs,
             r.wall_time_s
         ));
+        r
+    };
+    let concurrent = rayon::current_num_threads().clamp(1, 4);
+    let mut results: Vec<SceneResult> = Vec::new();
+    for group in v.scenes.chunks(concurrent) {
+        let done: Vec<SceneResult> = std::thread::scope(|sc| {
+            let handles: Vec<_> = group.iter().map(|&k| sc.spawn(move || run_one(k))).collect();
+            handles
+                .into_iter()
+                .zip(group)
+                .map(|(h, &k)| h.join().unwrap_or_else(|_| failed_scene(k, "the scene's thread panicked".into())))
+                .collect()
+        });
+        results.extend(done);
+    }
+    for r in &results {
         let csv = out.join(format!("{}.csv", r.scene));
-        write_scene_csv(&csv, &r)?;
+        write_scene_csv(&csv, r)?;
         files.push(csv);
         if problem.output.vtu {
-            files.extend(write_scene_vtu(out, &r)?);
+            files.extend(write_scene_vtu(out, r)?);
         }
-        results.push(r);
     }
     let find = |k: SceneKind| results.iter().find(|r| r.scene == k.name());
 

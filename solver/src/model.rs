@@ -32,6 +32,8 @@ pub struct Loads {
     pub presc: Vec<f64>,
     /// External force on each rigid body's reference point (dead load).
     pub body_forces: Vec<[f64; 3]>,
+    /// Dead external nodal forces, 3 per node (e.g. from `surface::dead_traction`); empty = none.
+    pub nodal_forces: Vec<f64>,
 }
 
 impl Loads {
@@ -40,6 +42,7 @@ impl Loads {
             pressure: 0.0,
             presc: vec![0.0; model.dofs.presc_targets.len()],
             body_forces: vec![[0.0; 3]; model.dofs.bodies.len()],
+            nodal_forces: Vec::new(),
         }
     }
     /// Linear interpolation a + t (b − a).
@@ -53,6 +56,12 @@ impl Loads {
                 .zip(&b.body_forces)
                 .map(|(x, y)| [x[0] + t * (y[0] - x[0]), x[1] + t * (y[1] - x[1]), x[2] + t * (y[2] - x[2])])
                 .collect(),
+            nodal_forces: {
+                // an empty vector stands for zeros
+                let n = a.nodal_forces.len().max(b.nodal_forces.len());
+                let at = |v: &Vec<f64>, i: usize| v.get(i).copied().unwrap_or(0.0);
+                (0..n).map(|i| at(&a.nodal_forces, i) + t * (at(&b.nodal_forces, i) - at(&a.nodal_forces, i))).collect()
+            },
         }
     }
 }
@@ -90,6 +99,9 @@ pub struct Assembled {
     /// Strain energy and cavity volume (of the modelled part).
     pub energy: f64,
     pub volume: f64,
+    /// ∂V/∂q: the cavity volume's gradient in the reduced unknowns (= the reduced load of a unit
+    /// cavity pressure); empty without a cavity.
+    pub dvol: Vec<f64>,
     pub min_det_f: f64,
     pub u: Vec<[f64; 3]>,
     pub kin: Vec<BodyKin>,
@@ -134,7 +146,7 @@ impl Model {
         if form.kind != mesh.kind {
             return Err(ModelError::Mesh(format!("formulation {:?} on a {:?} mesh", form.kind, mesh.kind)));
         }
-        let dofs = DofMap::build(mesh.n_nodes(), constraints)?;
+        let dofs = DofMap::build(&mesh.nodes, constraints)?;
         let cavity = cavity_faces.map(|f| Cavity::new(&mesh, f));
         let pattern = build_pattern(&mesh, &dofs);
         let sym = SymbolicSparseColMat::<u32>::new_checked(
@@ -236,6 +248,7 @@ impl Model {
         }
         // cavity pressure: −p ∂V/∂x, tangent −p ∂²V/∂x²
         let mut volume = 0.0;
+        let mut gvol_full = if self.cavity.is_some() { vec![0.0; 3 * x0.len()] } else { Vec::new() };
         if let Some(cav) = &self.cavity {
             let p = loads.pressure;
             let xcur: Vec<[f64; 3]> = x0.iter().zip(&u).map(|(a, b)| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]).collect();
@@ -248,6 +261,11 @@ impl Model {
                 let mut g = vec![0.0; m];
                 let is_face = idx < nfaces;
                 volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
+                for (a, &n) in nodes.iter().enumerate() {
+                    for c in 0..3 {
+                        gvol_full[3 * n + c] += g[3 * a + c];
+                    }
+                }
                 if p != 0.0 {
                     for (a, &n) in nodes.iter().enumerate() {
                         for c in 0..3 {
@@ -269,9 +287,32 @@ impl Model {
                 }
             }
         }
-        // reduce the residual
+        // dead nodal forces
+        if !loads.nodal_forces.is_empty() {
+            if loads.nodal_forces.len() != r_full.len() {
+                return Err(ElementError::NonFinite(usize::MAX));
+            }
+            for (rv, f) in r_full.iter_mut().zip(&loads.nodal_forces) {
+                *rv -= f;
+            }
+        }
+        // reduce the residual (and the volume gradient)
         let nr = self.n_reduced();
         let mut r = vec![0.0; nr];
+        let mut dvol = if gvol_full.is_empty() { Vec::new() } else { vec![0.0; nr] };
+        for n in 0..gvol_full.len() / 3 {
+            for c in 0..3 {
+                let v = gvol_full[3 * n + c];
+                if v == 0.0 {
+                    continue;
+                }
+                rowbuf.clear();
+                self.dofs.row(x0, &kin, n, c, &mut rowbuf);
+                for &(k, cf) in &rowbuf {
+                    dvol[k as usize] += cf * v;
+                }
+            }
+        }
         for n in 0..x0.len() {
             for c in 0..3 {
                 let v = r_full[3 * n + c];
@@ -330,6 +371,7 @@ impl Model {
             f_scale: f_int_sq.sqrt(),
             energy,
             volume,
+            dvol,
             min_det_f,
             u,
             kin,

@@ -144,6 +144,14 @@ pub fn torsion_slice(kind: ElementKind, form: Formulation, n_theta: usize, n_r: 
     Ok(TorsionSlice { model, h, top, inner: n0, outer, twist_slot })
 }
 
+/// Work done along a path.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PathCost {
+    pub steps: usize,
+    /// Newton iterations, counting 3 per failed attempt
+    pub newton_iterations: usize,
+}
+
 /// One converged torsion state.
 #[derive(Clone, Debug)]
 pub struct TorsionPoint {
@@ -160,7 +168,8 @@ pub struct TorsionPoint {
 impl TorsionSlice {
     /// Twist to each of `angles_deg` (end rotation over the length `length`) in turn, from the
     /// unloaded state; returns the converged states (stops at the first failure).
-    pub fn twist(&self, length: f64, angles_deg: &[f64], opts: &StepOptions) -> (Vec<TorsionPoint>, PathStatus) {
+    pub fn twist(&self, length: f64, angles_deg: &[f64], opts: &StepOptions) -> (Vec<TorsionPoint>, PathStatus, PathCost) {
+        let mut cost = PathCost::default();
         let m = &self.model;
         let mut q = vec![0.0; m.n_reduced()];
         let mut from = Loads::zero(m);
@@ -173,8 +182,10 @@ impl TorsionSlice {
                 last = Some(self.point(ang, s.assembled));
                 None
             });
+            cost.steps += res.steps;
+            cost.newton_iterations += res.newton_iterations;
             if res.status != PathStatus::Completed {
-                return (out, res.status);
+                return (out, res.status, cost);
             }
             if let Some(p) = last {
                 out.push(p);
@@ -182,7 +193,7 @@ impl TorsionSlice {
             q = res.q;
             from = to;
         }
-        (out, PathStatus::Completed)
+        (out, PathStatus::Completed, cost)
     }
 
     /// End loads and radii of an assembled state.

@@ -106,3 +106,16 @@ fn pressure_rigid_body_and_cyclic_parts() {
     q[nr - 1] = 0.4;
     check(&model, &q, &loads, 1e-6);
 }
+
+#[test]
+fn helical_periodic_constraint_parts() {
+    // ring slice with the end faces tied by x_top = Q(α) x_bottom + (h + s) e_z, s free
+    use twistopt_solver::verify::torsion_slice;
+    for kind in [ElementKind::Hex27, ElementKind::Hex8] {
+        let s = torsion_slice(kind, Formulation::standard(kind), 8, 1, 2.0, 500.0, true).unwrap();
+        let mut loads = Loads::zero(&s.model);
+        loads.presc[s.twist_slot] = 0.05;
+        let q = pseudo_random(s.model.n_reduced(), 0.05);
+        check(&s.model, &q, &loads, 1e-6);
+    }
+}

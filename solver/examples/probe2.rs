@@ -1,31 +1,32 @@
 use twistopt_solver::element::Formulation;
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::model::Loads;
-use twistopt_solver::solve::{follow_path, newton, NewtonOptions, StepOptions};
+use twistopt_solver::solve::{follow_path, follow_volume, StepOptions};
 use twistopt_solver::verify::*;
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let kind = if a[1] == "8" { ElementKind::Hex8 } else { ElementKind::Hex27 };
-    let ratio: f64 = a[2].parse().unwrap();
-    let s = torsion_slice(kind, Formulation::standard(kind), 24, 2, 2.0, ratio, false).unwrap();
+    let (nt, nr): (usize, usize) = (a[2].parse().unwrap(), a[3].parse().unwrap());
+    let s = inflation_slice(Formulation::standard(kind), nt, nr, 2.0, 1000.0).unwrap();
     let m = &s.model;
     let from = Loads::zero(m);
+    let q0 = vec![0.0; m.n_reduced()];
+    let a0 = m.assemble(&q0, &from, false).unwrap();
+    println!("V0 {} vs {}", a0.volume, s.volume_of(1.0, 1.0));
     let mut to = from.clone();
-    to.presc[s.twist_slot] = 10f64.to_radians() / 40.0 * s.h;
-    let res = follow_path(m, &vec![0.0; m.n_reduced()], &from, &to, &StepOptions { initial: 1.0, ..Default::default() }, |_| None);
-    for (deg, pred) in [(12.0, false)] {
-        let mut loads = to.clone();
-        loads.presc[s.twist_slot] = f64::to_radians(deg) / 40.0 * s.h;
-        let mut q = res.q.clone();
-        if pred {
-            let a = m.assemble(&q, &loads, true).unwrap();
-            let dq = m.factor(a.k.as_ref().unwrap()).unwrap().solve(&a.r).unwrap();
-            q.iter_mut().zip(&dq).for_each(|(x, d)| *x -= d);
-        }
-        for ind in [false] {
-            let mut qq = q.clone();
-            let r = newton(m, &mut qq, &loads, &NewtonOptions { log: true, line_search: false, indefinite: ind, rtol: 1e-16, max_iter: 12, ..Default::default() });
-            match r { Ok((st, a)) => println!("{deg} pred={pred} lu={ind}: {:?} fscale {:e}", st.residual_norms, a.f_scale), Err(e) => println!("{deg} {pred} {ind}: {e:?}") }
-        }
-    }
+    to.pressure = 0.05;
+    let t = std::time::Instant::now();
+    let res = follow_path(m, &q0, &from, &to, &StepOptions::default(), |st| {
+        let (la, lz) = s.stretches(st.assembled);
+        println!("p={:.6} lA={:.5} lz={:.5} it={}", st.loads.pressure, la, lz, st.newton_iterations);
+        None
+    });
+    println!("{:?} last p {} steps {} {:.2}s", res.status, res.loads.pressure, res.steps, t.elapsed().as_secs_f64());
+    let t = std::time::Instant::now();
+    let vr = follow_volume(m, &q0, 0.0, &from, s.volume_of(2.5, 1.651), &StepOptions { initial: 0.02, max: 0.05, ..Default::default() }, |st| {
+        let (la, lz) = s.stretches(st.assembled);
+        println!("V p={:.6} lA={:.5} lz={:.5} it={}", st.pressure, la, lz, st.newton_iterations);
+        None
+    });
+    println!("{:?} steps {} {:.2}s", vr.status, vr.steps, t.elapsed().as_secs_f64());
 }

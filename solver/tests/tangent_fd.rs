@@ -105,6 +105,17 @@ fn pressure_rigid_body_and_cyclic_parts() {
     q[nr - 2] = -0.05;
     q[nr - 1] = 0.4;
     check(&model, &q, &loads, 1e-6);
+    // the reduced volume gradient ∂V/∂q (the pressure load per unit p used by volume control)
+    let a = model.assemble(&q, &loads, false).unwrap();
+    let gmax = a.dvol.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for i in 0..nr {
+        let h = 1e-6;
+        let (mut qp, mut qm) = (q.clone(), q.clone());
+        qp[i] += h;
+        qm[i] -= h;
+        let fd = (model.assemble(&qp, &loads, false).unwrap().volume - model.assemble(&qm, &loads, false).unwrap().volume) / (2.0 * h);
+        assert!((fd - a.dvol[i]).abs() < 1e-6 * gmax, "dV/dq[{i}]: {} vs FD {fd}", a.dvol[i]);
+    }
 }
 
 #[test]

@@ -603,4 +603,34 @@ mod tests {
         let kin = BodyKin::new([0.0; 3], [0.0, 0.0, 0.7]);
         assert!((kin.r[0][0] - 0.7f64.cos()).abs() < 1e-15 && (kin.r[1][0] - 0.7f64.sin()).abs() < 1e-15);
     }
+
+    #[test]
+    fn periodic_constraint_errors() {
+        // two nodes stacked on z, and one off-axis
+        let x0 = [[1.0, 0.0, 0.0], [1.0, 0.0, 2.0], [0.0, 1.0, 2.0]];
+        let per = |pairs: Vec<(usize, usize)>, angle0: f64, shift: DofSpec| Periodic { pairs, angle0, twist: 0.1, shift };
+        let build = |p: Periodic, presc: Vec<(usize, usize, f64)>| {
+            DofMap::build(&x0, &Constraints { prescribed: presc, periodic: vec![p], ..Default::default() })
+        };
+        assert!(build(per(vec![(0, 1)], 0.0, DofSpec::Free), vec![]).is_ok());
+        // node 2 is node 0 rotated by 90°
+        assert!(build(per(vec![(0, 2)], std::f64::consts::FRAC_PI_2, DofSpec::Free), vec![]).is_ok());
+        assert!(matches!(build(per(vec![(0, 2)], 0.0, DofSpec::Free), vec![]), Err(ConstraintError::PeriodicMismatch(0, 2))));
+        assert!(matches!(build(per(vec![(0, 1)], f64::NAN, DofSpec::Free), vec![]), Err(ConstraintError::NonFinite)));
+        assert!(matches!(build(per(vec![(0, 1)], 0.0, DofSpec::Prescribed(f64::INFINITY)), vec![]), Err(ConstraintError::NonFinite)));
+        assert!(matches!(build(per(vec![(0, 1)], 0.0, DofSpec::Free), vec![(1, 0, 0.0)]), Err(ConstraintError::Conflict(1, _))));
+        assert!(matches!(build(per(vec![(0, 7)], 0.0, DofSpec::Free), vec![]), Err(ConstraintError::BadNode(7))));
+        // a prescribed master is allowed: u_b = Q u_a + …, and the map is as documented
+        let d = build(per(vec![(0, 1)], 0.0, DofSpec::Prescribed(0.3)), vec![(0, 2, 0.0)]).unwrap();
+        let presc = vec![0.0, 0.2, 0.3]; // u_z(0), twist α, shift s
+        let q: Vec<f64> = (0..d.n_reduced()).map(|i| 0.01 * (i + 1) as f64).collect();
+        let kin = d.body_kinematics(&q, &presc);
+        let u = d.expand(&x0, &q, &presc, &kin);
+        let xa = [x0[0][0] + u[0][0], x0[0][1] + u[0][1], x0[0][2] + u[0][2]];
+        let (sn, cs) = 0.2f64.sin_cos();
+        let xb = [cs * xa[0] - sn * xa[1], sn * xa[0] + cs * xa[1], xa[2] + 2.0 + 0.3];
+        for c in 0..3 {
+            assert!((x0[1][c] + u[1][c] - xb[c]).abs() < 1e-15);
+        }
+    }
 }

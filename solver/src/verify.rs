@@ -23,6 +23,15 @@ pub const MU: f64 = 0.34;
 pub const TUBE_A: f64 = 17.0;
 pub const TUBE_B: f64 = 20.0;
 
+fn check_slice(n_theta: usize, n_r: usize, h: f64, theta_multiple: usize) -> Result<(), ModelError> {
+    if n_theta == 0 || n_theta % theta_multiple != 0 || n_theta > 4096 || n_r == 0 || n_r > 256 || !(h.is_finite() && h > 0.0) {
+        return Err(ModelError::Mesh(format!(
+            "tube slice: {n_theta} elements around (a positive multiple of {theta_multiple}), {n_r} through the wall, height {h}"
+        )));
+    }
+    Ok(())
+}
+
 /// Result of a Cook's membrane run.
 #[derive(Clone, Debug)]
 pub struct CookResult {
@@ -38,6 +47,9 @@ pub struct CookResult {
 /// B5: Cook's membrane on an n × n mesh (one element through the unit thickness), μ = 0.34,
 /// κ/μ given, dead traction 0.0264983 N/mm² (total 0.423973 N per mm of thickness).
 pub fn cook_membrane(form: Formulation, n: usize, kappa_over_mu: f64, traction: f64) -> Result<CookResult, ModelError> {
+    if n == 0 || n > 512 {
+        return Err(ModelError::Mesh(format!("Cook's membrane: {n} elements per side (1..=512)")));
+    }
     let mesh = meshgen::structured(form.kind, n, n, 1, |p| {
         let x = 48.0 * p[0];
         let yb = 44.0 * p[0];
@@ -102,6 +114,7 @@ pub struct TorsionSlice {
 
 /// Build the torsion slice. `free_length`: the axial shift s is a free DOF (N = 0) instead of 0.
 pub fn torsion_slice(kind: ElementKind, form: Formulation, n_theta: usize, n_r: usize, h: f64, kappa_over_mu: f64, free_length: bool) -> Result<TorsionSlice, ModelError> {
+    check_slice(n_theta, n_r, h, 4)?;
     let mesh = meshgen::ring(kind, n_theta, 1, n_r, TUBE_A, TUBE_B, h);
     let bottom = mesh.node_sets["ymin"].clone();
     let top = mesh.node_sets["ymax"].clone();
@@ -225,6 +238,7 @@ pub struct InflationSlice {
 }
 
 pub fn inflation_slice(form: Formulation, n_theta: usize, n_r: usize, h: f64, kappa_over_mu: f64) -> Result<InflationSlice, ModelError> {
+    check_slice(n_theta, n_r, h, 1)?;
     let mesh = meshgen::tube(form.kind, n_theta, 1, n_r, TUBE_A, TUBE_B, (0.0, std::f64::consts::FRAC_PI_2), h);
     let mut cons = Constraints::default();
     for &n in &mesh.node_sets["xmin"] {
@@ -264,5 +278,34 @@ impl InflationSlice {
     /// Cavity volume of the slice for given stretches: π a² λ_z h / 4.
     pub fn volume_of(&self, la: f64, lz: f64) -> f64 {
         std::f64::consts::PI * (la * TUBE_A).powi(2) * lz * self.h / 4.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        let q2 = Formulation::standard(ElementKind::Hex27);
+        assert!(cook_membrane(q2, 0, 5000.0, 0.02).is_err());
+        assert!(cook_membrane(q2, 2, f64::NAN, 0.02).is_err());
+        assert!(cook_membrane(q2, 2, 5000.0, f64::INFINITY).is_err());
+        assert!(torsion_slice(ElementKind::Hex27, q2, 6, 1, 2.0, 1000.0, false).is_err());
+        assert!(torsion_slice(ElementKind::Hex27, q2, 8, 0, 2.0, 1000.0, false).is_err());
+        assert!(torsion_slice(ElementKind::Hex27, q2, 8, 1, -1.0, 1000.0, false).is_err());
+        assert!(inflation_slice(q2, 4, 1, f64::NAN, 1000.0).is_err());
+        // a non-finite twist is a failed path, not a NaN result
+        let s = torsion_slice(ElementKind::Hex27, q2, 8, 1, 2.0, 1000.0, false).unwrap();
+        let (pts, status, _) = s.twist(40.0, &[f64::NAN], &StepOptions::default());
+        assert!(pts.is_empty() && matches!(status, PathStatus::Failed(_)), "{status:?}");
+        // volume control without a cavity or with a non-finite target fails cleanly
+        let m = &s.model;
+        let r = crate::solve::follow_volume(m, &vec![0.0; m.n_reduced()], 0.0, &Loads::zero(m), 1.0, &StepOptions::default(), |_| None);
+        assert!(matches!(r.status, PathStatus::Failed(_)));
+        let f = inflation_slice(q2, 4, 1, 2.0, 1000.0).unwrap();
+        let m = &f.model;
+        let r = crate::solve::follow_volume(m, &vec![0.0; m.n_reduced()], 0.0, &Loads::zero(m), f64::NAN, &StepOptions::default(), |_| None);
+        assert!(matches!(r.status, PathStatus::Failed(_)));
     }
 }

@@ -323,7 +323,8 @@ pub fn tangent<M: Hyperelastic>(
                     }
                 }
             }
-            for b in 0..nn {
+            // upper block triangle only (b ≥ a); mirrored after the quadrature loop
+            for b in a_..nn {
                 let gbv = d.g[b];
                 let sa = sg[a_];
                 let sb = sg[b];
@@ -351,6 +352,16 @@ pub fn tangent<M: Hyperelastic>(
                 }
                 for s in 0..np {
                     hmat[r * np + s] += upp * d.q[r] * d.q[s] * wj0;
+                }
+            }
+        }
+    }
+    // the tangent is symmetric: copy the upper node blocks to the lower ones
+    for a_ in 0..nn {
+        for b in a_ + 1..nn {
+            for i in 0..3 {
+                for k in 0..3 {
+                    k_out[(3 * b + k) * nd + 3 * a_ + i] = k_out[(3 * a_ + i) * nd + 3 * b + k];
                 }
             }
         }

@@ -24,7 +24,7 @@ pub const TUBE_A: f64 = 17.0;
 pub const TUBE_B: f64 = 20.0;
 
 fn check_slice(n_theta: usize, n_r: usize, h: f64, theta_multiple: usize) -> Result<(), ModelError> {
-    if n_theta == 0 || n_theta % theta_multiple != 0 || n_theta > 4096 || n_r == 0 || n_r > 256 || !(h.is_finite() && h > 0.0) {
+    if n_theta == 0 || !n_theta.is_multiple_of(theta_multiple) || n_theta > 4096 || n_r == 0 || n_r > 256 || !(h.is_finite() && h > 0.0) {
         return Err(ModelError::Mesh(format!(
             "tube slice: {n_theta} elements around (a positive multiple of {theta_multiple}), {n_r} through the wall, height {h}"
         )));

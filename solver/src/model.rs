@@ -9,7 +9,11 @@ use crate::shape::HexRule;
 use crate::surface::{self, Cavity};
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::solvers::Solve;
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, CholeskySymbolicParams, IntranodeLbltRef, SymbolicCholesky, SymmetricOrdering};
+use faer::{Conj, Par};
+use std::sync::Arc;
 use faer::{Mat, Side};
 use rayon::prelude::*;
 
@@ -131,6 +135,7 @@ pub struct Model {
     pattern: Pattern,
     symbolic: SymbolicLlt<u32>,
     symbolic_lu: std::sync::OnceLock<Option<(SymbolicSparseColMat<u32>, Vec<usize>, SymbolicLu<u32>)>>,
+    symbolic_lblt: std::sync::OnceLock<Option<Arc<SymbolicCholesky<u32>>>>,
     /// Elements per parallel work unit (fixed: results do not depend on the thread count).
     pub chunk: usize,
 }
@@ -170,6 +175,7 @@ impl Model {
             pattern,
             symbolic,
             symbolic_lu: std::sync::OnceLock::new(),
+            symbolic_lblt: std::sync::OnceLock::new(),
             chunk: 32,
         })
     }
@@ -436,6 +442,76 @@ impl Model {
         }
     }
 
+    /// Factorisation of the symmetric, possibly indefinite tangent: sparse LBLᵀ (Bunch–Kaufman
+    /// pivoting within supernodes, with the Cholesky's symbolic structure), checked by the residual
+    /// of a test solve; falls back to LU when that check fails (e.g. small problems, where faer
+    /// uses an unpivoted simplicial LDLᵀ).
+    pub fn factor_indefinite(&self, values: &[f64]) -> Result<Factor, SolveError> {
+        if let Some(f) = self.factor_lblt(values) {
+            return Ok(f);
+        }
+        self.factor_lu(values)
+    }
+
+    fn factor_lblt(&self, values: &[f64]) -> Option<Factor> {
+        let sym = self
+            .symbolic_lblt
+            .get_or_init(|| {
+                let a = SymbolicSparseColMat::<u32>::new_checked(
+                    self.pattern.n,
+                    self.pattern.n,
+                    self.pattern.col_ptr.clone(),
+                    None,
+                    self.pattern.row_idx.clone(),
+                );
+                factorize_symbolic_cholesky(a.as_ref(), Side::Upper, SymmetricOrdering::Amd, CholeskySymbolicParams::default())
+                    .ok()
+                    .map(Arc::new)
+            })
+            .as_ref()?
+            .clone();
+        let n = self.pattern.n;
+        let a = self.matrix(values.to_vec());
+        let mut lv = vec![0.0; sym.len_val()];
+        let mut subdiag = vec![0.0; n];
+        let mut fwd = vec![0u32; n];
+        let mut inv = vec![0u32; n];
+        let mut mem = MemBuffer::new(sym.factorize_numeric_intranode_lblt_scratch::<f64>(Par::Seq, Default::default()));
+        sym.factorize_numeric_intranode_lblt(&mut lv, &mut subdiag, &mut fwd, &mut inv, a.as_ref(), Side::Upper, Par::Seq, MemStack::new(&mut mem), Default::default());
+        let f = Factor::Lblt(Box::new(Lblt { sym, values: lv, subdiag, fwd, inv }));
+        // accept only if a test solve is backward stable: ‖K x − b‖ ≤ 1e-11 (‖K‖_F ‖x‖ + ‖b‖)
+        // (a breakdown on tiny unpivoted pivots gives a much larger backward error)
+        let b: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7919) % 13) as f64 / 13.0).collect();
+        let x = f.solve(&b).ok()?;
+        let kx = self.sym_matvec(values, &x);
+        let nrm = |v: &[f64]| v.iter().map(|t| t * t).sum::<f64>().sqrt();
+        let res: f64 = kx.iter().zip(&b).map(|(p, q)| (p - q) * (p - q)).sum::<f64>().sqrt();
+        let kf: f64 = (0..n)
+            .flat_map(|c| (self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize).map(move |s| (c, s)))
+            .map(|(c, s)| values[s] * values[s] * if self.pattern.row_idx[s] as usize == c { 1.0 } else { 2.0 })
+            .sum::<f64>()
+            .sqrt();
+        let eta = res / (kf * nrm(&x) + nrm(&b));
+        (eta <= 1e-11).then_some(f)
+    }
+
+    /// y = K x for the tangent given by its upper-triangle values.
+    pub fn sym_matvec(&self, values: &[f64], x: &[f64]) -> Vec<f64> {
+        let n = self.pattern.n;
+        let mut y = vec![0.0; n];
+        for c in 0..n {
+            for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
+                let r = self.pattern.row_idx[s] as usize;
+                let v = values[s];
+                y[r] += v * x[c];
+                if r != c {
+                    y[c] += v * x[r];
+                }
+            }
+        }
+        y
+    }
+
     /// LU factorisation of the (symmetric, possibly indefinite) tangent.
     pub fn factor_lu(&self, values: &[f64]) -> Result<Factor, SolveError> {
         let lu_sym = self.symbolic_lu.get_or_init(|| {
@@ -477,6 +553,16 @@ impl Model {
 pub enum Factor {
     Llt(Llt<u32, f64>),
     Lu(Lu<u32, f64>),
+    Lblt(Box<Lblt>),
+}
+
+/// An LBLᵀ factorisation (owned storage of faer's intranodal Bunch–Kaufman factor).
+pub struct Lblt {
+    sym: Arc<SymbolicCholesky<u32>>,
+    values: Vec<f64>,
+    subdiag: Vec<f64>,
+    fwd: Vec<u32>,
+    inv: Vec<u32>,
 }
 
 impl Factor {
@@ -485,6 +571,13 @@ impl Factor {
         match self {
             Factor::Llt(l) => l.solve_in_place(m.as_mut()),
             Factor::Lu(l) => l.solve_in_place(m.as_mut()),
+            Factor::Lblt(f) => {
+                let n = f.sym.nrows();
+                let perm = faer::perm::PermRef::new_checked(&f.fwd, &f.inv, n);
+                let l = IntranodeLbltRef::new(&f.sym, &f.values, &f.subdiag, perm);
+                let mut mem = MemBuffer::new(f.sym.solve_in_place_scratch::<f64>(1, Par::Seq));
+                l.solve_in_place_with_conj(Conj::No, m.as_mut(), Par::Seq, MemStack::new(&mut mem));
+            }
         }
         let x: Vec<f64> = (0..b.len()).map(|i| m[(i, 0)]).collect();
         if x.iter().all(|v| v.is_finite()) {

@@ -99,7 +99,7 @@ pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptio
         }
         last_norm = rn;
         let kv = a.k.take().expect("tangent requested");
-        let fac = if opts.indefinite { model.factor_lu(&kv) } else { model.factor(&kv) };
+        let fac = if opts.indefinite { model.factor_indefinite(&kv) } else { model.factor(&kv) };
         let fac = match fac {
             Ok(f) => f,
             Err(SolveError::NotPositiveDefinite) => return fail(q, NewtonFailure::NotPositiveDefinite),
@@ -390,7 +390,7 @@ pub fn newton_volume(
         }
         last_norm = rn;
         let kv = a.k.take().expect("tangent requested");
-        let fac = match model.factor_lu(&kv) {
+        let fac = match model.factor_indefinite(&kv) {
             Ok(f) => f,
             Err(_) => return fail(q, p, NewtonFailure::Divergence),
         };

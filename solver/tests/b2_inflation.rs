@@ -107,6 +107,18 @@ fn b2_volume_control_passes_the_maximum() {
             p = res.pressure;
         }
     }
+    // past the maximum (λ_A = 2.5) the tangent under pressure is indefinite: no Cholesky, but the
+    // indefinite factorisation (LBLᵀ or LU) used by volume control solves it accurately
+    let mut lp = loads.clone();
+    lp.pressure = p;
+    let a = m.assemble(&q, &lp, true).unwrap();
+    let kv = a.k.unwrap();
+    assert!(m.factor(&kv).is_err(), "tangent past the maximum should be indefinite");
+    let b: Vec<f64> = (0..m.n_reduced()).map(|i| ((i % 7) as f64 - 3.0) * 1e-3).collect();
+    let x = m.factor_indefinite(&kv).unwrap().solve(&b).unwrap();
+    let kx = m.sym_matvec(&kv, &x);
+    let err = kx.iter().zip(&b).map(|(u, v)| (u - v).powi(2)).sum::<f64>().sqrt() / b.iter().map(|v| v * v).sum::<f64>().sqrt();
+    assert!(err < 1e-6, "indefinite solve residual {err:e}");
     // the pressure maximum: parabola through the largest sample and its neighbours
     let k = (1..curve.len() - 1).max_by(|&a, &b| curve[a].1.partial_cmp(&curve[b].1).unwrap()).unwrap();
     let ((x0, y0), (x1, y1), (x2, y2)) = (curve[k - 1], curve[k], curve[k + 1]);

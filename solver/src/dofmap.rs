@@ -40,6 +40,32 @@ pub struct Cyclic {
     pub angle: f64,
 }
 
+/// Affine (helical) periodicity between two node sets: for each pair (a, b)
+///
+///   x_b = Q(angle0 + α) x_a + (Z_b − Z_a + s) e_z,
+///
+/// Q(φ) the rotation by φ about +z, x the current positions. `angle0` is the fixed reference
+/// rotation from a to b (0 for the two end faces of an axial slice, 2π/n for a cyclic sector) —
+/// the reference nodes must satisfy X_b = Q(angle0) X_a + (Z_b − Z_a) e_z. The extra rotation α
+/// (`twist`, the value at the end of the load path) is a prescribed slot interpolated along the
+/// path like every prescribed value; the axial shift s is free or prescribed.
+///
+/// In displacements u_b = Q u_a + Q X_a + (Z_b − Z_a + s) e_z − X_b: linear in the master's
+/// displacement, whatever that is (free, prescribed or a cyclic slave), so the master may carry
+/// other constraints; a slave must be otherwise unconstrained, and a master may be neither a
+/// periodic slave nor rigid-body coupled.
+///
+/// With a = the bottom face and b = the top face of an axial slice of height h, α = ψ h and
+/// s = (λ_z − 1) h, it represents exactly a helically invariant field (uniform torsion, extension,
+/// inflation of an infinitely long tube): the slice is a period of the infinite tube.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Periodic {
+    pub pairs: Vec<(usize, usize)>,
+    pub angle0: f64,
+    pub twist: f64,
+    pub shift: DofSpec,
+}
+
 /// All kinematic constraints of a model.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Constraints {
@@ -47,6 +73,8 @@ pub struct Constraints {
     pub prescribed: Vec<(usize, usize, f64)>,
     pub cyclic: Option<Cyclic>,
     pub bodies: Vec<RigidBody>,
+    #[serde(default)]
+    pub periodic: Vec<Periodic>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -56,6 +84,8 @@ pub(crate) enum Comp {
     /// start index and count into `terms`
     Lin(u32, u8),
     Rigid(u16),
+    /// index into `per_pairs`
+    Periodic(u32),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -73,6 +103,10 @@ pub enum ConstraintError {
     CyclicMismatch(usize, usize),
     #[error("node index {0} out of range")]
     BadNode(usize),
+    #[error("periodic pair ({0}, {1}): the reference nodes do not satisfy X_b = Q(angle0) X_a + Δz e_z")]
+    PeriodicMismatch(usize, usize),
+    #[error("non-finite value in a constraint")]
+    NonFinite,
 }
 
 /// The compiled map u(q).
@@ -87,6 +121,11 @@ pub struct DofMap {
     pub presc_targets: Vec<f64>,
     /// (node, comp) of each prescribed nodal slot (body slots are listed in body_dofs)
     pub presc_nodes: Vec<(usize, usize)>,
+    pub periodic: Vec<Periodic>,
+    /// per periodic constraint: (prescribed slot of the twist α, the shift s)
+    pub periodic_dofs: Vec<(usize, BodyDof)>,
+    /// (master node, periodic constraint) of each periodic slave
+    pub(crate) per_pairs: Vec<(u32, u32)>,
 }
 
 /// Kinematics of one rigid body at the current state.
@@ -160,7 +199,9 @@ impl BodyKin {
 }
 
 impl DofMap {
-    pub fn build(n_nodes: usize, cons: &Constraints) -> Result<DofMap, ConstraintError> {
+    /// Compile the constraints of a mesh with reference coordinates `x0`.
+    pub fn build(x0: &[[f64; 3]], cons: &Constraints) -> Result<DofMap, ConstraintError> {
+        let n_nodes = x0.len();
         #[derive(Clone, Copy, PartialEq)]
         enum Tag {
             Free,
@@ -218,10 +259,49 @@ impl DofMap {
                 }
             }
         }
+        // periodic slaves (b of each pair): must be otherwise unconstrained
+        let mut per_master = vec![(usize::MAX, 0usize); n_nodes];
+        for (pi, per) in cons.periodic.iter().enumerate() {
+            if !per.angle0.is_finite() || !per.twist.is_finite() || matches!(per.shift, DofSpec::Prescribed(v) if !v.is_finite()) {
+                return Err(ConstraintError::NonFinite);
+            }
+            for &(a, b) in &per.pairs {
+                if a >= n_nodes || b >= n_nodes {
+                    return Err(ConstraintError::BadNode(a.max(b)));
+                }
+                if a == b || (0..3).any(|c| tag[3 * b + c] != Tag::Free) || slave_of[b] != usize::MAX || per_master[b].0 != usize::MAX {
+                    return Err(ConstraintError::Conflict(b, "periodic slave carries another constraint"));
+                }
+                per_master[b] = (a, pi);
+            }
+        }
+        for per in &cons.periodic {
+            let (s0, c0) = per.angle0.sin_cos();
+            for &(a, b) in &per.pairs {
+                if per_master[a].0 != usize::MAX || (0..3).any(|c| matches!(tag[3 * a + c], Tag::Rigid(_))) {
+                    return Err(ConstraintError::Conflict(a, "periodic master is a periodic slave or rigid"));
+                }
+                let (xa, xb) = (x0[a], x0[b]);
+                let scale = 1.0 + xa[0].abs().max(xa[1].abs()).max(xb[0].abs()).max(xb[1].abs());
+                let ex = c0 * xa[0] - s0 * xa[1] - xb[0];
+                let ey = s0 * xa[0] + c0 * xa[1] - xb[1];
+                if !(ex.abs() <= 1e-9 * scale && ey.abs() <= 1e-9 * scale) {
+                    return Err(ConstraintError::PeriodicMismatch(a, b));
+                }
+            }
+        }
         let mut comps = vec![Comp::Presc(0); 3 * n_nodes];
         let mut n_free = 0u32;
+        let mut per_pairs = Vec::new();
         for n in 0..n_nodes {
             if slave_of[n] != usize::MAX {
+                continue;
+            }
+            if per_master[n].0 != usize::MAX {
+                for c in 0..3 {
+                    comps[3 * n + c] = Comp::Periodic(per_pairs.len() as u32);
+                }
+                per_pairs.push((per_master[n].0 as u32, per_master[n].1 as u32));
                 continue;
             }
             for c in 0..3 {
@@ -278,6 +358,22 @@ impl DofMap {
             }
             body_dofs.push(d);
         }
+        let mut periodic_dofs = Vec::new();
+        for per in &cons.periodic {
+            presc_targets.push(per.twist);
+            let twist_slot = presc_targets.len() - 1;
+            let shift = match per.shift {
+                DofSpec::Free => {
+                    n_red += 1;
+                    BodyDof::Free(n_red - 1)
+                }
+                DofSpec::Prescribed(v) => {
+                    presc_targets.push(v);
+                    BodyDof::Presc(presc_targets.len() - 1)
+                }
+            };
+            periodic_dofs.push((twist_slot, shift));
+        }
         Ok(DofMap {
             comps,
             terms,
@@ -286,6 +382,9 @@ impl DofMap {
             bodies: cons.bodies.clone(),
             presc_targets,
             presc_nodes,
+            periodic: cons.periodic.clone(),
+            periodic_dofs,
+            per_pairs,
         })
     }
 
@@ -302,13 +401,30 @@ impl DofMap {
         }
     }
 
+    /// Kinematics of the rigid bodies, followed by one entry per periodic constraint (its
+    /// rotation Q(angle0 + α) about z as ψ = (0, 0, angle0 + α), and its shift as c = (0, 0, s)).
     pub fn body_kinematics(&self, q: &[f64], presc: &[f64]) -> Vec<BodyKin> {
-        (0..self.bodies.len())
+        let mut kin: Vec<BodyKin> = (0..self.bodies.len())
             .map(|b| {
                 let v: Vec<f64> = (0..6).map(|k| self.body_value(b, k, q, presc)).collect();
                 BodyKin::new([v[0], v[1], v[2]], [v[3], v[4], v[5]])
             })
-            .collect()
+            .collect();
+        for (per, &(slot, shift)) in self.periodic.iter().zip(&self.periodic_dofs) {
+            let s = match shift {
+                BodyDof::Free(i) => q[i],
+                BodyDof::Presc(k) => presc[k],
+            };
+            let phi = per.angle0 + presc[slot];
+            let (sn, cs) = phi.sin_cos();
+            let mut r = [[0.0; 3]; 3];
+            r[0] = [cs, -sn, 0.0];
+            r[1] = [sn, cs, 0.0];
+            r[2][2] = 1.0;
+            // only r is used for periodic constraints (the map is linear in q for a given α)
+            kin.push(BodyKin { c: [0.0, 0.0, s], psi: [0.0, 0.0, phi], r, dr: [[[0.0; 3]; 3]; 3], d2r: [[[[0.0; 3]; 3]; 3]; 3] });
+        }
+        kin
     }
 
     /// Full nodal displacements u(q) given the reference coordinates.
@@ -329,7 +445,26 @@ impl DofMap {
                         let d = sub(x0[node], body.reference);
                         kin[b as usize].disp(d)[c]
                     }
+                    Comp::Periodic(_) => 0.0, // second pass
                 };
+            }
+        }
+        // periodic slaves: u_b = Q (X_a + u_a) + (Z_b − Z_a + s) e_z − X_b (masters are done)
+        if !self.per_pairs.is_empty() {
+            for node in 0..n {
+                if let Comp::Periodic(k) = self.comps[3 * node] {
+                    let (a, p) = self.per_pairs[k as usize];
+                    let (a, p) = (a as usize, p as usize);
+                    let pk = &kin[self.bodies.len() + p];
+                    let xa = [x0[a][0] + u[a][0], x0[a][1] + u[a][1], x0[a][2] + u[a][2]];
+                    for c in 0..3 {
+                        let mut v = (0..3).map(|j| pk.r[c][j] * xa[j]).sum::<f64>() - x0[node][c];
+                        if c == 2 {
+                            v += x0[node][2] - x0[a][2] + pk.c[2];
+                        }
+                        u[node][c] = v;
+                    }
+                }
             }
         }
         u
@@ -361,6 +496,25 @@ impl DofMap {
                     }
                 }
             }
+            Comp::Periodic(k) => {
+                let (a, p) = self.per_pairs[k as usize];
+                let pk = &kin[self.bodies.len() + p as usize];
+                for j in 0..3 {
+                    let qcj = pk.r[c][j];
+                    if qcj != 0.0 {
+                        let start = out.len();
+                        self.row(x0, kin, a as usize, j, out);
+                        for t in &mut out[start..] {
+                            t.1 *= qcj;
+                        }
+                    }
+                }
+                if c == 2 {
+                    if let BodyDof::Free(i) = self.periodic_dofs[p as usize].1 {
+                        out.push((i as u32, 1.0));
+                    }
+                }
+            }
         }
     }
 
@@ -373,6 +527,19 @@ impl DofMap {
             Comp::Rigid(b) => {
                 for k in 0..6 {
                     if let BodyDof::Free(i) = self.body_dofs[b as usize][k] {
+                        out.push(i as u32);
+                    }
+                }
+            }
+            Comp::Periodic(k) => {
+                let (a, p) = self.per_pairs[k as usize];
+                // Q couples x and y (for any α); z maps to z
+                let js: &[usize] = if c == 2 { &[2] } else { &[0, 1] };
+                for &j in js {
+                    self.row_pattern(a as usize, j, out);
+                }
+                if c == 2 {
+                    if let BodyDof::Free(i) = self.periodic_dofs[p as usize].1 {
                         out.push(i as u32);
                     }
                 }
@@ -435,5 +602,35 @@ mod tests {
         // rotation about z by φ
         let kin = BodyKin::new([0.0; 3], [0.0, 0.0, 0.7]);
         assert!((kin.r[0][0] - 0.7f64.cos()).abs() < 1e-15 && (kin.r[1][0] - 0.7f64.sin()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn periodic_constraint_errors() {
+        // two nodes stacked on z, and one off-axis
+        let x0 = [[1.0, 0.0, 0.0], [1.0, 0.0, 2.0], [0.0, 1.0, 2.0]];
+        let per = |pairs: Vec<(usize, usize)>, angle0: f64, shift: DofSpec| Periodic { pairs, angle0, twist: 0.1, shift };
+        let build = |p: Periodic, presc: Vec<(usize, usize, f64)>| {
+            DofMap::build(&x0, &Constraints { prescribed: presc, periodic: vec![p], ..Default::default() })
+        };
+        assert!(build(per(vec![(0, 1)], 0.0, DofSpec::Free), vec![]).is_ok());
+        // node 2 is node 0 rotated by 90°
+        assert!(build(per(vec![(0, 2)], std::f64::consts::FRAC_PI_2, DofSpec::Free), vec![]).is_ok());
+        assert!(matches!(build(per(vec![(0, 2)], 0.0, DofSpec::Free), vec![]), Err(ConstraintError::PeriodicMismatch(0, 2))));
+        assert!(matches!(build(per(vec![(0, 1)], f64::NAN, DofSpec::Free), vec![]), Err(ConstraintError::NonFinite)));
+        assert!(matches!(build(per(vec![(0, 1)], 0.0, DofSpec::Prescribed(f64::INFINITY)), vec![]), Err(ConstraintError::NonFinite)));
+        assert!(matches!(build(per(vec![(0, 1)], 0.0, DofSpec::Free), vec![(1, 0, 0.0)]), Err(ConstraintError::Conflict(1, _))));
+        assert!(matches!(build(per(vec![(0, 7)], 0.0, DofSpec::Free), vec![]), Err(ConstraintError::BadNode(7))));
+        // a prescribed master is allowed: u_b = Q u_a + …, and the map is as documented
+        let d = build(per(vec![(0, 1)], 0.0, DofSpec::Prescribed(0.3)), vec![(0, 2, 0.0)]).unwrap();
+        let presc = vec![0.0, 0.2, 0.3]; // u_z(0), twist α, shift s
+        let q: Vec<f64> = (0..d.n_reduced()).map(|i| 0.01 * (i + 1) as f64).collect();
+        let kin = d.body_kinematics(&q, &presc);
+        let u = d.expand(&x0, &q, &presc, &kin);
+        let xa = [x0[0][0] + u[0][0], x0[0][1] + u[0][1], x0[0][2] + u[0][2]];
+        let (sn, cs) = 0.2f64.sin_cos();
+        let xb = [cs * xa[0] - sn * xa[1], sn * xa[0] + cs * xa[1], xa[2] + 2.0 + 0.3];
+        for c in 0..3 {
+            assert!((x0[1][c] + u[1][c] - xb[c]).abs() < 1e-15);
+        }
     }
 }

@@ -14,3 +14,4 @@ pub mod scalar;
 pub mod shape;
 pub mod solve;
 pub mod surface;
+pub mod verify;

@@ -91,3 +91,45 @@ pub fn tube(kind: ElementKind, n_theta: usize, n_z: usize, n_r: usize, a: f64, b
         [r * th.cos(), r * th.sin(), p[1] * h]
     })
 }
+
+/// The full tube (θ from 0 to 2π) with the nodes of the θ = 0 and θ = 2π cuts merged: a closed
+/// ring. Node sets `ymin, ymax` (z ends), `zmin, zmax` (inner/outer radius); face sets likewise.
+/// The cut sets `xmin`/`xmax` are dropped (there is no cut).
+pub fn ring(kind: ElementKind, n_theta: usize, n_z: usize, n_r: usize, a: f64, b: f64, h: f64) -> Mesh {
+    let m = tube(kind, n_theta, n_z, n_r, a, b, (0.0, 2.0 * std::f64::consts::PI), h);
+    let xmin = m.node_sets.get("xmin").cloned().unwrap_or_default();
+    let xmax = m.node_sets.get("xmax").cloned().unwrap_or_default();
+    // each θ = 2π node is the θ = 0 node at the same (z, r)
+    let mut map: Vec<usize> = (0..m.n_nodes()).collect();
+    for &n in &xmax {
+        let p = m.nodes[n];
+        if let Some(&t) = xmin.iter().find(|&&t| {
+            let q = m.nodes[t];
+            (p[0] - q[0]).abs() + (p[1] - q[1]).abs() + (p[2] - q[2]).abs() < 1e-9 * (1.0 + b.abs() + h.abs())
+        }) {
+            map[n] = t;
+        }
+    }
+    let mut new_id = vec![usize::MAX; m.n_nodes()];
+    let mut nodes = Vec::new();
+    for n in 0..m.n_nodes() {
+        if map[n] == n {
+            new_id[n] = nodes.len();
+            nodes.push(m.nodes[n]);
+        }
+    }
+    let remap = |n: usize| new_id[map[n]];
+    let connectivity = m.connectivity.iter().map(|&n| remap(n)).collect();
+    let mut node_sets = BTreeMap::new();
+    for (k, v) in &m.node_sets {
+        if k == "xmin" || k == "xmax" {
+            continue;
+        }
+        let mut w: Vec<usize> = v.iter().map(|&n| remap(n)).collect();
+        w.sort_unstable();
+        w.dedup();
+        node_sets.insert(k.clone(), w);
+    }
+    let face_sets = m.face_sets.into_iter().filter(|(k, _)| k != "xmin" && k != "xmax").collect();
+    Mesh { nodes, kind, connectivity, node_sets, face_sets }
+}

@@ -9,7 +9,11 @@ use crate::shape::HexRule;
 use crate::surface::{self, Cavity};
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::solvers::Solve;
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, CholeskySymbolicParams, IntranodeLbltRef, SymbolicCholesky, SymmetricOrdering};
+use faer::{Conj, Par};
+use std::sync::Arc;
 use faer::{Mat, Side};
 use rayon::prelude::*;
 
@@ -32,6 +36,8 @@ pub struct Loads {
     pub presc: Vec<f64>,
     /// External force on each rigid body's reference point (dead load).
     pub body_forces: Vec<[f64; 3]>,
+    /// Dead external nodal forces, 3 per node (e.g. from `surface::dead_traction`); empty = none.
+    pub nodal_forces: Vec<f64>,
 }
 
 impl Loads {
@@ -40,6 +46,7 @@ impl Loads {
             pressure: 0.0,
             presc: vec![0.0; model.dofs.presc_targets.len()],
             body_forces: vec![[0.0; 3]; model.dofs.bodies.len()],
+            nodal_forces: Vec::new(),
         }
     }
     /// Linear interpolation a + t (b − a).
@@ -53,6 +60,12 @@ impl Loads {
                 .zip(&b.body_forces)
                 .map(|(x, y)| [x[0] + t * (y[0] - x[0]), x[1] + t * (y[1] - x[1]), x[2] + t * (y[2] - x[2])])
                 .collect(),
+            nodal_forces: {
+                // an empty vector stands for zeros
+                let n = a.nodal_forces.len().max(b.nodal_forces.len());
+                let at = |v: &Vec<f64>, i: usize| v.get(i).copied().unwrap_or(0.0);
+                (0..n).map(|i| at(&a.nodal_forces, i) + t * (at(&b.nodal_forces, i) - at(&a.nodal_forces, i))).collect()
+            },
         }
     }
 }
@@ -90,6 +103,9 @@ pub struct Assembled {
     /// Strain energy and cavity volume (of the modelled part).
     pub energy: f64,
     pub volume: f64,
+    /// ∂V/∂q: the cavity volume's gradient in the reduced unknowns (= the reduced load of a unit
+    /// cavity pressure); empty without a cavity.
+    pub dvol: Vec<f64>,
     pub min_det_f: f64,
     pub u: Vec<[f64; 3]>,
     pub kin: Vec<BodyKin>,
@@ -119,6 +135,7 @@ pub struct Model {
     pattern: Pattern,
     symbolic: SymbolicLlt<u32>,
     symbolic_lu: std::sync::OnceLock<Option<(SymbolicSparseColMat<u32>, Vec<usize>, SymbolicLu<u32>)>>,
+    symbolic_lblt: std::sync::OnceLock<Option<Arc<SymbolicCholesky<u32>>>>,
     /// Elements per parallel work unit (fixed: results do not depend on the thread count).
     pub chunk: usize,
     /// Per-element scatter tables (built on first use when they fit in memory).
@@ -143,7 +160,7 @@ impl Model {
         if form.kind != mesh.kind {
             return Err(ModelError::Mesh(format!("formulation {:?} on a {:?} mesh", form.kind, mesh.kind)));
         }
-        let dofs = DofMap::build(mesh.n_nodes(), constraints)?;
+        let dofs = DofMap::build(&mesh.nodes, constraints)?;
         let cavity = cavity_faces.map(|f| Cavity::new(&mesh, f));
         let pattern = build_pattern(&mesh, &dofs);
         let sym = SymbolicSparseColMat::<u32>::new_checked(
@@ -167,6 +184,7 @@ impl Model {
             pattern,
             symbolic,
             symbolic_lu: std::sync::OnceLock::new(),
+            symbolic_lblt: std::sync::OnceLock::new(),
             chunk: 32,
             scatter_cache: std::sync::OnceLock::new(),
         })
@@ -249,6 +267,7 @@ impl Model {
         }
         // cavity pressure: −p ∂V/∂x, tangent −p ∂²V/∂x²
         let mut volume = 0.0;
+        let mut gvol_full = if self.cavity.is_some() { vec![0.0; 3 * x0.len()] } else { Vec::new() };
         if let Some(cav) = &self.cavity {
             let p = loads.pressure;
             let xcur: Vec<[f64; 3]> = x0.iter().zip(&u).map(|(a, b)| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]).collect();
@@ -261,6 +280,11 @@ impl Model {
                 let mut g = vec![0.0; m];
                 let is_face = idx < nfaces;
                 volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
+                for (a, &n) in nodes.iter().enumerate() {
+                    for c in 0..3 {
+                        gvol_full[3 * n + c] += g[3 * a + c];
+                    }
+                }
                 if p != 0.0 {
                     for (a, &n) in nodes.iter().enumerate() {
                         for c in 0..3 {
@@ -282,9 +306,32 @@ impl Model {
                 }
             }
         }
-        // reduce the residual
+        // dead nodal forces
+        if !loads.nodal_forces.is_empty() {
+            if loads.nodal_forces.len() != r_full.len() {
+                return Err(ElementError::NonFinite(usize::MAX));
+            }
+            for (rv, f) in r_full.iter_mut().zip(&loads.nodal_forces) {
+                *rv -= f;
+            }
+        }
+        // reduce the residual (and the volume gradient)
         let nr = self.n_reduced();
         let mut r = vec![0.0; nr];
+        let mut dvol = if gvol_full.is_empty() { Vec::new() } else { vec![0.0; nr] };
+        for n in 0..gvol_full.len() / 3 {
+            for c in 0..3 {
+                let v = gvol_full[3 * n + c];
+                if v == 0.0 {
+                    continue;
+                }
+                rowbuf.clear();
+                self.dofs.row(x0, &kin, n, c, &mut rowbuf);
+                for &(k, cf) in &rowbuf {
+                    dvol[k as usize] += cf * v;
+                }
+            }
+        }
         for n in 0..x0.len() {
             for c in 0..3 {
                 let v = r_full[3 * n + c];
@@ -343,6 +390,7 @@ impl Model {
             f_scale: f_int_sq.sqrt(),
             energy,
             volume,
+            dvol,
             min_det_f,
             u,
             kin,
@@ -447,6 +495,76 @@ impl Model {
         }
     }
 
+    /// Factorisation of the symmetric, possibly indefinite tangent: sparse LBLᵀ (Bunch–Kaufman
+    /// pivoting within supernodes, with the Cholesky's symbolic structure), checked by the residual
+    /// of a test solve; falls back to LU when that check fails (e.g. small problems, where faer
+    /// uses an unpivoted simplicial LDLᵀ).
+    pub fn factor_indefinite(&self, values: &[f64]) -> Result<Factor, SolveError> {
+        if let Some(f) = self.factor_lblt(values) {
+            return Ok(f);
+        }
+        self.factor_lu(values)
+    }
+
+    fn factor_lblt(&self, values: &[f64]) -> Option<Factor> {
+        let sym = self
+            .symbolic_lblt
+            .get_or_init(|| {
+                let a = SymbolicSparseColMat::<u32>::new_checked(
+                    self.pattern.n,
+                    self.pattern.n,
+                    self.pattern.col_ptr.clone(),
+                    None,
+                    self.pattern.row_idx.clone(),
+                );
+                factorize_symbolic_cholesky(a.as_ref(), Side::Upper, SymmetricOrdering::Amd, CholeskySymbolicParams::default())
+                    .ok()
+                    .map(Arc::new)
+            })
+            .as_ref()?
+            .clone();
+        let n = self.pattern.n;
+        let a = self.matrix(values.to_vec());
+        let mut lv = vec![0.0; sym.len_val()];
+        let mut subdiag = vec![0.0; n];
+        let mut fwd = vec![0u32; n];
+        let mut inv = vec![0u32; n];
+        let mut mem = MemBuffer::new(sym.factorize_numeric_intranode_lblt_scratch::<f64>(Par::Seq, Default::default()));
+        sym.factorize_numeric_intranode_lblt(&mut lv, &mut subdiag, &mut fwd, &mut inv, a.as_ref(), Side::Upper, Par::Seq, MemStack::new(&mut mem), Default::default());
+        let f = Factor::Lblt(Box::new(Lblt { sym, values: lv, subdiag, fwd, inv }));
+        // accept only if a test solve is backward stable: ‖K x − b‖ ≤ 1e-11 (‖K‖_F ‖x‖ + ‖b‖)
+        // (a breakdown on tiny unpivoted pivots gives a much larger backward error)
+        let b: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7919) % 13) as f64 / 13.0).collect();
+        let x = f.solve(&b).ok()?;
+        let kx = self.sym_matvec(values, &x);
+        let nrm = |v: &[f64]| v.iter().map(|t| t * t).sum::<f64>().sqrt();
+        let res: f64 = kx.iter().zip(&b).map(|(p, q)| (p - q) * (p - q)).sum::<f64>().sqrt();
+        let kf: f64 = (0..n)
+            .flat_map(|c| (self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize).map(move |s| (c, s)))
+            .map(|(c, s)| values[s] * values[s] * if self.pattern.row_idx[s] as usize == c { 1.0 } else { 2.0 })
+            .sum::<f64>()
+            .sqrt();
+        let eta = res / (kf * nrm(&x) + nrm(&b));
+        (eta <= 1e-11).then_some(f)
+    }
+
+    /// y = K x for the tangent given by its upper-triangle values.
+    pub fn sym_matvec(&self, values: &[f64], x: &[f64]) -> Vec<f64> {
+        let n = self.pattern.n;
+        let mut y = vec![0.0; n];
+        for c in 0..n {
+            for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
+                let r = self.pattern.row_idx[s] as usize;
+                let v = values[s];
+                y[r] += v * x[c];
+                if r != c {
+                    y[c] += v * x[r];
+                }
+            }
+        }
+        y
+    }
+
     /// LU factorisation of the (symmetric, possibly indefinite) tangent.
     pub fn factor_lu(&self, values: &[f64]) -> Result<Factor, SolveError> {
         let lu_sym = self.symbolic_lu.get_or_init(|| {
@@ -488,6 +606,16 @@ impl Model {
 pub enum Factor {
     Llt(Llt<u32, f64>),
     Lu(Lu<u32, f64>),
+    Lblt(Box<Lblt>),
+}
+
+/// An LBLᵀ factorisation (owned storage of faer's intranodal Bunch–Kaufman factor).
+pub struct Lblt {
+    sym: Arc<SymbolicCholesky<u32>>,
+    values: Vec<f64>,
+    subdiag: Vec<f64>,
+    fwd: Vec<u32>,
+    inv: Vec<u32>,
 }
 
 impl Factor {
@@ -496,6 +624,13 @@ impl Factor {
         match self {
             Factor::Llt(l) => l.solve_in_place(m.as_mut()),
             Factor::Lu(l) => l.solve_in_place(m.as_mut()),
+            Factor::Lblt(f) => {
+                let n = f.sym.nrows();
+                let perm = faer::perm::PermRef::new_checked(&f.fwd, &f.inv, n);
+                let l = IntranodeLbltRef::new(&f.sym, &f.values, &f.subdiag, perm);
+                let mut mem = MemBuffer::new(f.sym.solve_in_place_scratch::<f64>(1, Par::Seq));
+                l.solve_in_place_with_conj(Conj::No, m.as_mut(), Par::Seq, MemStack::new(&mut mem));
+            }
         }
         let x: Vec<f64> = (0..b.len()).map(|i| m[(i, 0)]).collect();
         if x.iter().all(|v| v.is_finite()) {

@@ -52,7 +52,8 @@ fn norm(v: &[f64]) -> f64 {
 
 fn ext_scale(loads: &Loads, a: &Assembled) -> f64 {
     let fb: f64 = loads.body_forces.iter().map(|f| f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sum::<f64>().sqrt();
-    a.f_scale.max(fb)
+    let fn_: f64 = norm(&loads.nodal_forces);
+    a.f_scale.max(fb).max(fn_)
 }
 
 /// Solve r(q) = 0 at fixed loads starting from q (updated in place on success, restored on failure).
@@ -112,7 +113,7 @@ pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &Ne
         }
         last_norm = rn;
         let kv = a.k.take().expect("tangent requested");
-        let fac = if opts.indefinite { model.factor_lu(&kv) } else { model.factor(&kv) };
+        let fac = if opts.indefinite { model.factor_indefinite(&kv) } else { model.factor(&kv) };
         let fac = match fac {
             Ok(f) => f,
             Err(SolveError::NotPositiveDefinite) => match model.factor_lu(&kv) {
@@ -330,12 +331,7 @@ pub fn follow_path(
     }
     let status = match last_fail {
         None => PathStatus::Completed,
-        Some(f) => PathStatus::Failed(match f {
-            NewtonFailure::NotPositiveDefinite => FailureCause::LimitPoint,
-            NewtonFailure::Inversion => FailureCause::Inversion,
-            NewtonFailure::Divergence => FailureCause::Divergence,
-            NewtonFailure::IterationLimit => FailureCause::IterationLimit,
-        }),
+        Some(f) => PathStatus::Failed(cause_of(f)),
     };
     PathResult { status, t, q, loads, steps, newton_iterations: total_it }
 }
@@ -345,5 +341,206 @@ pub fn factor_converged(model: &Model, a: &Assembled) -> Result<Factor, SolveErr
     match &a.k {
         Some(k) => model.factor(k),
         None => Err(SolveError::Singular),
+    }
+}
+
+/// Newton's method under volume control: the cavity pressure p is an unknown and the cavity volume
+/// is held at `v_target` (bordered system). With g = ∂V/∂q (the reduced load of a unit pressure,
+/// so r = f_int − p g − f_ext) each iteration solves
+///
+///   K Δq − g Δp = −r,   gᵀ Δq = V_target − V(q),
+///
+/// by two solves with one LU factorisation of K (which is indefinite past a pressure maximum):
+/// K a = −r, K b = g, Δp = (V_target − V − gᵀa)/(gᵀb), Δq = a + Δp b. `q` and `p` are updated in
+/// place on success and restored on failure. `loads.pressure` is ignored.
+pub fn newton_volume(
+    model: &Model,
+    q: &mut Vec<f64>,
+    p: &mut f64,
+    loads: &Loads,
+    v_target: f64,
+    opts: &NewtonOptions,
+) -> Result<(NewtonStats, Assembled), NewtonFailure> {
+    let (q_start, p_start) = (q.clone(), *p);
+    let fail = |q: &mut Vec<f64>, p: &mut f64, f: NewtonFailure| {
+        *q = q_start.clone();
+        *p = p_start;
+        Err(f)
+    };
+    if model.cavity.is_none() || !v_target.is_finite() || !p.is_finite() {
+        return fail(q, p, NewtonFailure::Divergence);
+    }
+    let mut stats = NewtonStats::default();
+    let mut lo = loads.clone();
+    lo.pressure = *p;
+    let mut a = match model.assemble(q, &lo, true) {
+        Ok(a) => a,
+        Err(e) => return fail(q, p, elem_fail(e)),
+    };
+    let vtol = 1e-10 * v_target.abs().max(a.volume.abs());
+    let mut last_norm = f64::INFINITY;
+    let mut growth = 0;
+    for it in 0..=opts.max_iter {
+        let rn = norm(&a.r);
+        let dv = v_target - a.volume;
+        if !rn.is_finite() || !dv.is_finite() {
+            return fail(q, p, NewtonFailure::Divergence);
+        }
+        if opts.log {
+            stats.residual_norms.push(rn);
+        }
+        let scale = ext_scale(&lo, &a).max(p.abs() * norm(&a.dvol));
+        let tol = (opts.rtol * scale).max(opts.atol);
+        let at_floor = it > 0 && rn <= (opts.stagnation_rtol * scale).max(opts.atol) && rn > 0.5 * last_norm;
+        if (rn <= tol || at_floor) && dv.abs() <= vtol {
+            stats.iterations = it;
+            return Ok((stats, a));
+        }
+        if it == opts.max_iter {
+            break;
+        }
+        if rn > last_norm * 1e3 {
+            growth += 1;
+            if growth >= 2 {
+                return fail(q, p, NewtonFailure::Divergence);
+            }
+        }
+        last_norm = rn;
+        let kv = a.k.take().expect("tangent requested");
+        let fac = match model.factor_indefinite(&kv) {
+            Ok(f) => f,
+            Err(_) => return fail(q, p, NewtonFailure::Divergence),
+        };
+        let neg: Vec<f64> = a.r.iter().map(|v| -v).collect();
+        let (da, db) = match (fac.solve(&neg), fac.solve(&a.dvol)) {
+            (Ok(x), Ok(y)) => (x, y),
+            _ => return fail(q, p, NewtonFailure::Divergence),
+        };
+        let gb: f64 = a.dvol.iter().zip(&db).map(|(g, b)| g * b).sum();
+        let ga: f64 = a.dvol.iter().zip(&da).map(|(g, x)| g * x).sum();
+        let dp = (dv - ga) / gb;
+        if !dp.is_finite() {
+            return fail(q, p, NewtonFailure::Divergence);
+        }
+        // full Newton step; halve it only if an element inverts
+        let mut s = 1.0;
+        let mut accepted = None;
+        for _ in 0..8 {
+            let qt: Vec<f64> = q.iter().zip(da.iter().zip(&db)).map(|(x, (a1, b1))| x + s * (a1 + dp * b1)).collect();
+            let pt = *p + s * dp;
+            lo.pressure = pt;
+            match model.assemble(&qt, &lo, true) {
+                Ok(at) => {
+                    accepted = Some((qt, pt, at));
+                    break;
+                }
+                Err(_) => s *= 0.5,
+            }
+        }
+        match accepted {
+            Some((qt, pt, at)) => {
+                *q = qt;
+                *p = pt;
+                a = at;
+            }
+            None => return fail(q, p, NewtonFailure::Inversion),
+        }
+    }
+    fail(q, p, NewtonFailure::IterationLimit)
+}
+
+/// A converged volume-controlled step handed to the callback.
+pub struct VolumeStepInfo<'a> {
+    pub t: f64,
+    pub volume: f64,
+    pub pressure: f64,
+    pub q: &'a [f64],
+    pub assembled: &'a Assembled,
+    pub newton_iterations: usize,
+}
+
+/// Result of a volume-controlled path: final status, last converged t, state and pressure.
+pub struct VolumePathResult {
+    pub status: PathStatus,
+    pub t: f64,
+    pub q: Vec<f64>,
+    pub pressure: f64,
+    pub steps: usize,
+    pub newton_iterations: usize,
+}
+
+/// Follow a prescribed cavity volume V(t) = V(q0) + t (v_end − V(q0)), t ∈ [0, 1], from the
+/// converged state (q0, p0) with the other loads held at `loads` — the volume-control path that
+/// passes pressure maxima (the pressure is an unknown; see [`newton_volume`]). Adaptive steps as
+/// in [`follow_path`]; the callback sees each converged step and returns `Some(reason)` to stop.
+pub fn follow_volume(
+    model: &Model,
+    q0: &[f64],
+    p0: f64,
+    loads: &Loads,
+    v_end: f64,
+    opts: &StepOptions,
+    mut on_step: impl FnMut(&VolumeStepInfo) -> Option<String>,
+) -> VolumePathResult {
+    let mut q = q0.to_vec();
+    let mut p = p0;
+    let mut lo = loads.clone();
+    lo.pressure = p0;
+    let v0 = match model.assemble(&q, &lo, false) {
+        Ok(a) if model.cavity.is_some() && a.volume.is_finite() && v_end.is_finite() => a.volume,
+        _ => {
+            return VolumePathResult { status: PathStatus::Failed(FailureCause::Divergence), t: 0.0, q, pressure: p, steps: 0, newton_iterations: 0 }
+        }
+    };
+    let mut t = 0.0;
+    let mut dt = opts.initial.min(opts.max).max(opts.min);
+    let (mut steps, mut total_it) = (0, 0);
+    let mut last_fail = None;
+    while t < 1.0 - 1e-12 {
+        if steps >= opts.max_steps {
+            return VolumePathResult { status: PathStatus::Failed(FailureCause::StepLimit), t, q, pressure: p, steps, newton_iterations: total_it };
+        }
+        let tn = (t + dt).min(1.0);
+        let vt = v0 + tn * (v_end - v0);
+        let (mut qn, mut pn) = (q.clone(), p);
+        match newton_volume(model, &mut qn, &mut pn, loads, vt, &opts.newton) {
+            Ok((stats, a)) => {
+                steps += 1;
+                total_it += stats.iterations;
+                t = tn;
+                q = qn;
+                p = pn;
+                last_fail = None;
+                let info = VolumeStepInfo { t, volume: a.volume, pressure: p, q: &q, assembled: &a, newton_iterations: stats.iterations };
+                if let Some(reason) = on_step(&info) {
+                    return VolumePathResult { status: PathStatus::Stopped(reason), t, q, pressure: p, steps, newton_iterations: total_it };
+                }
+                if stats.iterations <= opts.easy_iterations {
+                    dt = (dt * opts.grow).min(opts.max);
+                }
+            }
+            Err(f) => {
+                total_it += opts.newton.max_iter.min(3);
+                last_fail = Some(f);
+                if dt <= opts.min * (1.0 + 1e-9) {
+                    break;
+                }
+                dt = (dt * opts.cut).max(opts.min);
+            }
+        }
+    }
+    let status = match last_fail {
+        None => PathStatus::Completed,
+        Some(f) => PathStatus::Failed(cause_of(f)),
+    };
+    VolumePathResult { status, t, q, pressure: p, steps, newton_iterations: total_it }
+}
+
+fn cause_of(f: NewtonFailure) -> FailureCause {
+    match f {
+        NewtonFailure::NotPositiveDefinite => FailureCause::LimitPoint,
+        NewtonFailure::Inversion => FailureCause::Inversion,
+        NewtonFailure::Divergence => FailureCause::Divergence,
+        NewtonFailure::IterationLimit => FailureCause::IterationLimit,
     }
 }

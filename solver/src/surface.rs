@@ -238,6 +238,40 @@ pub fn cavity_volume(cav: &Cavity, xcur: &[[f64; 3]]) -> f64 {
     v
 }
 
+/// Consistent nodal forces (3 per mesh node) of a uniform dead traction `t` (force per
+/// undeformed area) on a set of faces: f_a = t ∫ N_a dA over the reference faces. Gauss rule of
+/// 3 points per direction (exact for the areas of quadratic faces with straight or mildly curved
+/// sides; exact for flat faces). Non-finite tractions give zero forces and `None`.
+pub fn dead_traction(mesh: &Mesh, faces: &[Face], t: [f64; 3]) -> Option<Vec<f64>> {
+    if !t.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let mut f = vec![0.0; 3 * mesh.n_nodes()];
+    for face in faces {
+        let nodes = mesh.face_nodes(*face);
+        let rule = FaceRule::new(nodes.len(), 3);
+        for (g, w) in rule.weights.iter().enumerate() {
+            let (n, dn) = (&rule.n[g], &rule.dn[g]);
+            let mut a_s = [0.0; 3];
+            let mut a_t = [0.0; 3];
+            for (a, &node) in nodes.iter().enumerate() {
+                for i in 0..3 {
+                    a_s[i] += mesh.nodes[node][i] * dn[a][0];
+                    a_t[i] += mesh.nodes[node][i] * dn[a][1];
+                }
+            }
+            let nv = cross(a_s, a_t);
+            let da = dot(nv, nv).sqrt() * w;
+            for (a, &node) in nodes.iter().enumerate() {
+                for i in 0..3 {
+                    f[3 * node + i] += t[i] * n[a] * da;
+                }
+            }
+        }
+    }
+    Some(f)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -105,4 +105,28 @@ fn pressure_rigid_body_and_cyclic_parts() {
     q[nr - 2] = -0.05;
     q[nr - 1] = 0.4;
     check(&model, &q, &loads, 1e-6);
+    // the reduced volume gradient ∂V/∂q (the pressure load per unit p used by volume control)
+    let a = model.assemble(&q, &loads, false).unwrap();
+    let gmax = a.dvol.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for i in 0..nr {
+        let h = 1e-6;
+        let (mut qp, mut qm) = (q.clone(), q.clone());
+        qp[i] += h;
+        qm[i] -= h;
+        let fd = (model.assemble(&qp, &loads, false).unwrap().volume - model.assemble(&qm, &loads, false).unwrap().volume) / (2.0 * h);
+        assert!((fd - a.dvol[i]).abs() < 1e-6 * gmax, "dV/dq[{i}]: {} vs FD {fd}", a.dvol[i]);
+    }
+}
+
+#[test]
+fn helical_periodic_constraint_parts() {
+    // ring slice with the end faces tied by x_top = Q(α) x_bottom + (h + s) e_z, s free
+    use twistopt_solver::verify::torsion_slice;
+    for kind in [ElementKind::Hex27, ElementKind::Hex8] {
+        let s = torsion_slice(kind, Formulation::standard(kind), 8, 1, 2.0, 500.0, true).unwrap();
+        let mut loads = Loads::zero(&s.model);
+        loads.presc[s.twist_slot] = 0.05;
+        let q = pseudo_random(s.model.n_reduced(), 0.05);
+        check(&s.model, &q, &loads, 1e-6);
+    }
 }

@@ -41,11 +41,14 @@ pub struct LinePlot {
     pub series: Vec<Series>,
     /// draw the y = 0 and x = 0 axes when inside the range
     pub zero_axes: bool,
+    /// fixed axis ranges (default: the data with a 5 % margin)
+    pub x_range: Option<(f64, f64)>,
+    pub y_range: Option<(f64, f64)>,
 }
 
 impl LinePlot {
     pub fn new(title: impl Into<String>, x_label: impl Into<String>, y_label: impl Into<String>) -> Self {
-        LinePlot { title: title.into(), x_label: x_label.into(), y_label: y_label.into(), series: Vec::new(), zero_axes: true }
+        LinePlot { title: title.into(), x_label: x_label.into(), y_label: y_label.into(), series: Vec::new(), zero_axes: true, x_range: None, y_range: None }
     }
     pub fn with(mut self, s: Series) -> Self {
         self.series.push(s);
@@ -113,8 +116,9 @@ where
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot '{}': {e:?}", plot.title);
     root.fill(&WHITE).map_err(err)?;
     let pts = || plot.series.iter().flat_map(|s| s.points.iter()).filter(|p| p.0.is_finite() && p.1.is_finite());
-    let (x0, x1) = range(pts().map(|p| p.0)).unwrap_or((-1.0, 1.0));
-    let (y0, y1) = range(pts().map(|p| p.1)).unwrap_or((-1.0, 1.0));
+    let valid = |r: Option<(f64, f64)>| r.filter(|(a, b)| a.is_finite() && b.is_finite() && b > a);
+    let (x0, x1) = valid(plot.x_range).or_else(|| range(pts().map(|p| p.0))).unwrap_or((-1.0, 1.0));
+    let (y0, y1) = valid(plot.y_range).or_else(|| range(pts().map(|p| p.1))).unwrap_or((-1.0, 1.0));
     let mut chart = ChartBuilder::on(&root)
         .caption(&plot.title, (FONT, 22).into_font())
         .margin(16)

@@ -67,6 +67,24 @@ pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptio
 /// solved with LU; a converged state whose tangent is not positive definite is unstable and is
 /// reported as `NotPositiveDefinite` (unless `opts.indefinite`, where the LU factor is returned).
 pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptions) -> Result<(NewtonStats, Assembled, Factor), NewtonFailure> {
+    let mut indefinite_seen = false;
+    match newton_inner(model, q, loads, opts, &mut indefinite_seen) {
+        // a solve that met indefinite tangents and then failed to converge is the signature of a
+        // load beyond a limit point (no nearby stable equilibrium)
+        Err(NewtonFailure::Divergence | NewtonFailure::IterationLimit) if indefinite_seen && !opts.indefinite => {
+            Err(NewtonFailure::NotPositiveDefinite)
+        }
+        other => other,
+    }
+}
+
+fn newton_inner(
+    model: &Model,
+    q: &mut Vec<f64>,
+    loads: &Loads,
+    opts: &NewtonOptions,
+    indefinite_seen: &mut bool,
+) -> Result<(NewtonStats, Assembled, Factor), NewtonFailure> {
     let q_start = q.clone();
     let fail = |q: &mut Vec<f64>, f: NewtonFailure| {
         *q = q_start.clone();
@@ -116,10 +134,13 @@ pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &Ne
         let fac = if opts.indefinite { model.factor_indefinite(&kv) } else { model.factor(&kv) };
         let fac = match fac {
             Ok(f) => f,
-            Err(SolveError::NotPositiveDefinite) => match model.factor_lu(&kv) {
-                Ok(f) => f,
-                Err(_) => return fail(q, NewtonFailure::NotPositiveDefinite),
-            },
+            Err(SolveError::NotPositiveDefinite) => {
+                *indefinite_seen = true;
+                match model.factor_indefinite(&kv) {
+                    Ok(f) => f,
+                    Err(_) => return fail(q, NewtonFailure::NotPositiveDefinite),
+                }
+            }
             Err(_) => return fail(q, NewtonFailure::Divergence),
         };
         let neg: Vec<f64> = a.r.iter().map(|v| -v).collect();

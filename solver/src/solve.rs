@@ -17,6 +17,9 @@ pub struct NewtonOptions {
     pub atol: f64,
     /// Below ‖r‖ ≤ stagnation_rtol · scale, stop when the residual stops decreasing (round-off).
     pub stagnation_rtol: f64,
+    /// Energy criterion: converged when |Δq·r| ≤ etol · |Δq₀·r₀| (first iteration of the solve)
+    /// and ‖r‖ ≤ stagnation_rtol · scale.
+    pub etol: f64,
     pub line_search: bool,
     /// Use LU instead of Cholesky (indefinite tangents, e.g. past a limit point under displacement control).
     pub indefinite: bool,
@@ -26,7 +29,7 @@ pub struct NewtonOptions {
 
 impl Default for NewtonOptions {
     fn default() -> Self {
-        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, stagnation_rtol: 1e-7, line_search: true, indefinite: false, log: false }
+        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, stagnation_rtol: 1e-7, etol: 1e-22, line_search: true, indefinite: false, log: false }
     }
 }
 
@@ -97,6 +100,7 @@ fn newton_inner(
     };
     let mut last_norm = f64::INFINITY;
     let mut growth = 0;
+    let mut e0 = 0.0;
     for it in 0..=opts.max_iter {
         let rn = norm(&a.r);
         if !rn.is_finite() {
@@ -150,6 +154,18 @@ fn newton_inner(
         };
         // line search on the energy slope g(s) = dq · r(q + s dq)
         let g0: f64 = dq.iter().zip(&a.r).map(|(d, r)| d * r).sum();
+        if it == 0 {
+            e0 = g0.abs();
+        } else if g0.abs() <= opts.etol * e0 && rn <= (opts.stagnation_rtol * scale).max(opts.atol) {
+            // energy criterion: the remaining Newton correction carries no energy
+            stats.iterations = it;
+            a.k = Some(kv);
+            return match fac {
+                Factor::Llt(_) => Ok((stats, a, fac)),
+                _ if opts.indefinite => Ok((stats, a, fac)),
+                _ => fail(q, NewtonFailure::NotPositiveDefinite),
+            };
+        }
         let mut s = 1.0;
         let mut accepted = None;
         for _ls in 0..8 {

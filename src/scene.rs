@@ -113,7 +113,7 @@ impl SceneOptions {
             material,
             sector: true,
             ballooning_limit_mm: 1.15 * R0_ENVELOPE,
-            steps: StepOptions { initial: 0.25, max: 0.5, min: 1e-3, ..StepOptions::default() },
+            steps: StepOptions { initial: 0.25, max: 0.5, min: 1e-2, ..StepOptions::default() },
             keep_fields: false,
         }
     }
@@ -343,8 +343,12 @@ impl<'a> Ramp<'a> {
         let gap = self.gap;
         let mut stop_rec = Vec::new();
         let keep = self.opts.keep_fields;
+        // smallest step: 0.1 kPa (or the options' fraction if finer), whatever the segment length
+        let mut steps_opts = self.opts.steps.clone();
+        let span = ((to.pressure - self.loads.pressure).abs() * 1e3).max(1e-9);
+        steps_opts.min = steps_opts.min.min(0.1 / span).max(1e-6);
         let mut fields = Vec::new();
-        let res = follow_path(&sm.model, &self.q, &self.loads, &to, &self.opts.steps, |info| {
+        let res = follow_path(&sm.model, &self.q, &self.loads, &to, &steps_opts, |info| {
             let rec = sm.record(info.assembled, info.loads, info.q, info.newton_iterations);
             let over = rec.max_radius_mm > limit;
             let contact = info.loads.pressure < 0.0 && sm.self_contact(info.assembled, gap);

@@ -17,6 +17,9 @@ pub struct NewtonOptions {
     pub atol: f64,
     /// Below ‖r‖ ≤ stagnation_rtol · scale, stop when the residual stops decreasing (round-off).
     pub stagnation_rtol: f64,
+    /// Give up (divergence) when the residual is still above its initial value after this many
+    /// iterations, or above 1e-6 of it after twice as many.
+    pub stall_iterations: usize,
     /// Energy criterion: converged when |Δq·r| ≤ etol · |Δq₀·r₀| (first iteration of the solve)
     /// and ‖r‖ ≤ stagnation_rtol · scale.
     pub etol: f64,
@@ -29,7 +32,7 @@ pub struct NewtonOptions {
 
 impl Default for NewtonOptions {
     fn default() -> Self {
-        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, stagnation_rtol: 1e-7, etol: 1e-22, line_search: true, indefinite: false, log: false }
+        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, stagnation_rtol: 1e-7, stall_iterations: 8, etol: 1e-22, line_search: true, indefinite: false, log: false }
     }
 }
 
@@ -101,6 +104,7 @@ fn newton_inner(
     let mut last_norm = f64::INFINITY;
     let mut growth = 0;
     let mut e0 = 0.0;
+    let mut r0 = f64::INFINITY;
     for it in 0..=opts.max_iter {
         let rn = norm(&a.r);
         if !rn.is_finite() {
@@ -132,6 +136,13 @@ fn newton_inner(
             if growth >= 2 {
                 return fail(q, NewtonFailure::Divergence);
             }
+        }
+        if it == 0 {
+            r0 = rn;
+        }
+        // fail fast: a solve that is not converging should hand back to the step control early
+        if (it >= opts.stall_iterations && rn > r0) || (it >= 2 * opts.stall_iterations && rn > 1e-6 * r0) {
+            return fail(q, NewtonFailure::Divergence);
         }
         last_norm = rn;
         let kv = a.k.take().expect("tangent requested");

@@ -203,3 +203,37 @@ fn a_pressure_beyond_what_the_wall_survives_is_a_status_not_an_error() {
     assert!(d.join("theta_vs_p.png").exists() && d.join("theta_vs_p.svg").exists());
     assert!(!d.join("free.pvd").exists(), "vtu = false writes no ParaView series");
 }
+
+#[test]
+fn pure_twist_pair_gives_its_own_energy_density() {
+    let d = out_dir("evaluate-pure-twist");
+    let out = evaluate(
+        EXAMPLE,
+        &[
+            "fidelity.preset=coarse",
+            "scenes.run=[\"pure-twist\",\"pure-twist-blocked\"]",
+            "load.pressures_kPa=[30]",
+            "torque_rotation.pressures_kPa=[30]",
+            "torque_rotation.points=1",
+            "output.vtu=false",
+        ],
+        &d,
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let r = read_json(&d.join("result.json"));
+    assert!(r.get("omega_J_m3").is_none(), "no combined pair ran");
+    let theta = f(&r["scenes"]["pure-twist"]["steps"][1]["theta_deg"]);
+    let tau = f(&r["scenes"]["pure-twist-blocked"]["steps"][1]["tau_Nm"]);
+    // with the axial motion held the actuator twists less than in the combined mode (≈ −6.9°)
+    assert!((-6.3..-5.5).contains(&theta), "pure twist θ(30 kPa) = {theta}");
+    assert!((-0.018..-0.014).contains(&tau), "pure twist τ(30 kPa) = {tau}");
+    assert_eq!(f(&r["scenes"]["pure-twist"]["steps"][1]["axial_mm"]), 0.0, "the axle holds the cap");
+    let v_m3 = std::f64::consts::PI * 25.0 * 25.0 * 40.0 * 1e-9;
+    let omega = f(&r["omega_pure_twist_J_m3"]);
+    let expect = theta.abs().to_radians() * tau.abs() / (8.0 * v_m3);
+    assert!((omega - expect).abs() < 1e-9 * expect, "Ω = {omega}, expected {expect}");
+    let tr = &r["torque_rotation"][0];
+    assert_eq!(tr["mode"], "pure-twist");
+    assert!((f(&tr["points"][0]["tau_Nm"]) - tau).abs() < 1e-6 * tau.abs());
+    assert!((f(&tr["free_theta_deg"]) - theta).abs() < 1e-9);
+}

@@ -313,7 +313,9 @@ impl Problem {
                 bail!("torque_rotation.points = {} must be between 1 and 50", tr.points);
             }
             let has = |k: SceneKind| scenes.contains(&k);
-            if !(has(SceneKind::Free) && has(SceneKind::Blocked)) && !(has(SceneKind::PureTwist) && has(SceneKind::PureTwistBlocked)) {
+            let combined = has(SceneKind::Free) && has(SceneKind::Blocked);
+            let pure = has(SceneKind::PureTwist) && has(SceneKind::PureTwistBlocked);
+            if !combined && !pure {
                 bail!("torque_rotation needs scenes.run to include both free and blocked (combined mode) or both pure-twist and pure-twist-blocked");
             }
         }

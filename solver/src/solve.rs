@@ -363,24 +363,19 @@ pub fn follow_path(
                 if let Some(reason) = on_step(&info) {
                     return PathResult { status: PathStatus::Stopped(reason), t, q, loads, steps, newton_iterations: total_it };
                 }
-                if stats.iterations <= opts.easy_iterations {
-                    dt = (dt * opts.grow).min(opts.max);
-                }
+                dt = step_after_success(opts, dt, stats.iterations);
             }
             Err(f) => {
                 total_it += opts.newton.max_iter.min(3);
                 last_fail = Some(f);
-                if dt <= opts.min * (1.0 + 1e-9) {
-                    break;
+                match step_after_failure(opts, dt) {
+                    Some(d) => dt = d,
+                    None => break,
                 }
-                dt = (dt * opts.cut).max(opts.min);
             }
         }
     }
-    let status = match last_fail {
-        None => PathStatus::Completed,
-        Some(f) => PathStatus::Failed(cause_of(f)),
-    };
+    let status = path_status(last_fail);
     PathResult { status, t, q, loads, steps, newton_iterations: total_it }
 }
 
@@ -563,25 +558,45 @@ pub fn follow_volume(
                 if let Some(reason) = on_step(&info) {
                     return VolumePathResult { status: PathStatus::Stopped(reason), t, q, pressure: p, steps, newton_iterations: total_it };
                 }
-                if stats.iterations <= opts.easy_iterations {
-                    dt = (dt * opts.grow).min(opts.max);
-                }
+                dt = step_after_success(opts, dt, stats.iterations);
             }
             Err(f) => {
                 total_it += opts.newton.max_iter.min(3);
                 last_fail = Some(f);
-                if dt <= opts.min * (1.0 + 1e-9) {
-                    break;
+                match step_after_failure(opts, dt) {
+                    Some(d) => dt = d,
+                    None => break,
                 }
-                dt = (dt * opts.cut).max(opts.min);
             }
         }
     }
-    let status = match last_fail {
+    let status = path_status(last_fail);
+    VolumePathResult { status, t, q, pressure: p, steps, newton_iterations: total_it }
+}
+
+/// Step size after a converged step: grow on easy steps.
+fn step_after_success(opts: &StepOptions, dt: f64, iterations: usize) -> f64 {
+    if iterations <= opts.easy_iterations {
+        (dt * opts.grow).min(opts.max)
+    } else {
+        dt
+    }
+}
+
+/// Step size after a failed step: cut back, or None when already at the smallest step.
+fn step_after_failure(opts: &StepOptions, dt: f64) -> Option<f64> {
+    if dt <= opts.min * (1.0 + 1e-9) {
+        None
+    } else {
+        Some((dt * opts.cut).max(opts.min))
+    }
+}
+
+fn path_status(last_fail: Option<NewtonFailure>) -> PathStatus {
+    match last_fail {
         None => PathStatus::Completed,
         Some(f) => PathStatus::Failed(cause_of(f)),
-    };
-    VolumePathResult { status, t, q, pressure: p, steps, newton_iterations: total_it }
+    }
 }
 
 fn cause_of(f: NewtonFailure) -> FailureCause {

@@ -212,11 +212,7 @@ impl SceneModel {
         let am = build_mesh(geom, &spec)?;
         let mesh = am.mesh.clone();
         let mut cons = Constraints::default();
-        for &n in &mesh.node_sets["bottom"] {
-            for c in 0..3 {
-                cons.prescribed.push((n, c, 0.0));
-            }
-        }
+        cons.prescribe_set(&mesh.node_sets["bottom"], &[0, 1, 2], 0.0);
         let top_nodes = mesh.node_sets["top"].clone();
         let cap_reference = [0.0, 0.0, L_TUBE];
         cons.bodies.push(RigidBody {

@@ -77,6 +77,17 @@ pub struct Constraints {
     pub periodic: Vec<Periodic>,
 }
 
+impl Constraints {
+    /// Prescribe components `comps` of every node in `nodes` to `value` (0 = fixed).
+    pub fn prescribe_set(&mut self, nodes: &[usize], comps: &[usize], value: f64) {
+        for &n in nodes {
+            for &c in comps {
+                self.prescribed.push((n, c, value));
+            }
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum Comp {
     Free(u32),

@@ -139,9 +139,7 @@ pub fn torsion_slice(kind: ElementKind, form: Formulation, n_theta: usize, n_r: 
     let (n0, n90, n180) = (find(TUBE_A, 0.0)?, find(0.0, TUBE_A)?, find(-TUBE_A, 0.0)?);
     let outer = find(TUBE_B, 0.0)?;
     let mut cons = Constraints::default();
-    for &n in &bottom {
-        cons.prescribed.push((n, 2, 0.0));
-    }
+    cons.prescribe_set(&bottom, &[2], 0.0);
     cons.prescribed.push((n0, 1, 0.0));
     cons.prescribed.push((n90, 0, 0.0));
     cons.prescribed.push((n180, 1, 0.0));
@@ -241,15 +239,9 @@ pub fn inflation_slice(form: Formulation, n_theta: usize, n_r: usize, h: f64, ka
     check_slice(n_theta, n_r, h, 1)?;
     let mesh = meshgen::tube(form.kind, n_theta, 1, n_r, TUBE_A, TUBE_B, (0.0, std::f64::consts::FRAC_PI_2), h);
     let mut cons = Constraints::default();
-    for &n in &mesh.node_sets["xmin"] {
-        cons.prescribed.push((n, 1, 0.0));
-    }
-    for &n in &mesh.node_sets["xmax"] {
-        cons.prescribed.push((n, 0, 0.0));
-    }
-    for &n in &mesh.node_sets["ymin"] {
-        cons.prescribed.push((n, 2, 0.0));
-    }
+    cons.prescribe_set(&mesh.node_sets["xmin"], &[1], 0.0);
+    cons.prescribe_set(&mesh.node_sets["xmax"], &[0], 0.0);
+    cons.prescribe_set(&mesh.node_sets["ymin"], &[2], 0.0);
     let top_nodes = mesh.node_sets["ymax"].clone();
     let p0 = DofSpec::Prescribed(0.0);
     cons.bodies.push(RigidBody {

@@ -13,19 +13,11 @@ fn uniaxial(kind: ElementKind, ratio: f64, stretches: &[f64]) -> Vec<(f64, f64, 
     let n = if kind == ElementKind::Hex27 { 1 } else { 2 };
     let mesh = meshgen::boxed(kind, [n, n, n], [1.0, 1.0, 1.0]);
     let mut cons = Constraints::default();
-    for &n in &mesh.node_sets["xmin"] {
-        cons.prescribed.push((n, 0, 0.0));
-    }
-    for &n in &mesh.node_sets["ymin"] {
-        cons.prescribed.push((n, 1, 0.0));
-    }
-    for &n in &mesh.node_sets["zmin"] {
-        cons.prescribed.push((n, 2, 0.0));
-    }
+    cons.prescribe_set(&mesh.node_sets["xmin"], &[0], 0.0);
+    cons.prescribe_set(&mesh.node_sets["ymin"], &[1], 0.0);
+    cons.prescribe_set(&mesh.node_sets["zmin"], &[2], 0.0);
     let xmax = mesh.node_sets["xmax"].clone();
-    for &n in &xmax {
-        cons.prescribed.push((n, 0, 1.0));
-    }
+    cons.prescribe_set(&xmax, &[0], 1.0);
     let mat = NeoHookean::with_ratio(0.34, ratio).unwrap();
     let model = Model::new(mesh, Formulation::standard(kind), mat.into(), &cons, None).unwrap();
     let mut out = Vec::new();

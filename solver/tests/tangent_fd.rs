@@ -39,11 +39,7 @@ fn material_and_geometric_parts_hex27_and_hex8() {
     for kind in [ElementKind::Hex27, ElementKind::Hex8] {
         let mesh = meshgen::boxed(kind, [2, 2, 2], [1.0, 1.0, 1.0]);
         let mut cons = Constraints::default();
-        for &n in &mesh.node_sets["zmin"] {
-            for c in 0..3 {
-                cons.prescribed.push((n, c, 0.0));
-            }
-        }
+        cons.prescribe_set(&mesh.node_sets["zmin"], &[0, 1, 2], 0.0);
         let mat = NeoHookean::with_ratio(0.34, 1000.0).unwrap();
         let model = Model::new(mesh, Formulation::standard(kind), mat.into(), &cons, None).unwrap();
         let q = pseudo_random(model.n_reduced(), 0.02);
@@ -61,11 +57,7 @@ fn sector(pressure: bool, rigid: bool, cyclic: bool) -> (Model, Loads, Vec<f64>)
     let mut cons = Constraints::default();
     let bottom: Vec<usize> = (0..mesh.n_nodes()).filter(|&n| mesh.nodes[n][2].abs() < 1e-9).collect();
     let top: Vec<usize> = (0..mesh.n_nodes()).filter(|&n| (mesh.nodes[n][2] - 40.0).abs() < 1e-9).collect();
-    for &n in &bottom {
-        for c in 0..3 {
-            cons.prescribed.push((n, c, 0.0));
-        }
-    }
+    cons.prescribe_set(&bottom, &[0, 1, 2], 0.0);
     if rigid {
         cons.bodies.push(RigidBody {
             name: "cap".into(),

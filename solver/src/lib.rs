@@ -4,6 +4,7 @@
 //! (fixed/prescribed DOFs, rigid bodies, cyclic symmetry), follower pressure on closed cavities,
 //! sparse assembly, Newton with line search, adaptive load stepping and adjoint sensitivities.
 
+pub mod adjoint;
 pub mod dofmap;
 pub mod element;
 pub mod material;

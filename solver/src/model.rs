@@ -663,7 +663,7 @@ fn scatter_cached(t: &ElemScatter, rows: &[Vec<(u32, f64)>], ke: &[f64], kv: &mu
     }
 }
 
-fn relabel(e: ElementError, el: usize) -> ElementError {
+pub(crate) fn relabel(e: ElementError, el: usize) -> ElementError {
     match e {
         ElementError::BadReference(_) => ElementError::BadReference(el),
         ElementError::Inverted(_) => ElementError::Inverted(el),

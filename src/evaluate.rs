@@ -26,6 +26,15 @@ use crate::plot::{line_plot, LinePlot, Series};
 use crate::problem::{LoadPlan, Problem, Validated};
 use crate::scene::{energy_density, run_pressure, run_torque_rotation, SceneKind, SceneResult, StepRecord, TorqueRotation};
 
+/// Write pretty JSON through a temporary file and a rename, so that an interrupted run never
+/// leaves a truncated file (non-finite numbers become null).
+pub fn write_json_atomic(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let text = serde_json::to_string_pretty(value)? + "\n";
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// Relative tolerance for matching recorded pressures to requested ones.
 const P_TOL: f64 = 1e-9;
 
@@ -438,7 +447,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
     result.insert("wall_time_s".into(), json!(t0.elapsed().as_secs_f64()));
     let result = Value::Object(result);
     let path = out.join("result.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&result)? + "\n").with_context(|| format!("cannot write {}", path.display()))?;
+    write_json_atomic(&path, &result)?;
     files.push(path);
     Ok(Evaluation { result, files })
 }

@@ -13,6 +13,7 @@ pub mod cli;
 pub mod evaluate;
 pub mod export;
 pub mod geometry;
+pub mod gradient;
 pub mod meshing;
 pub mod plot;
 pub mod problem;

@@ -390,6 +390,55 @@ impl<'a> Ramp<'a> {
     }
 }
 
+/// A converged state of a scene at one pressure (for sensitivities and warm starts).
+pub struct Equilibrium {
+    pub q: Vec<f64>,
+    pub loads: Loads,
+    /// the last converged state's record (its pressure is the target unless `end` is set)
+    pub record: StepRecord,
+    pub newton_iterations: usize,
+    /// why the ramp ended before the target (status, cause); None = target reached
+    pub end: Option<(String, String)>,
+    /// whether the warm start was used (Newton straight from the given state converged)
+    pub warm_started: bool,
+}
+
+/// The equilibrium of a scene at pressure `p_kpa`, without the ballooning stop (the caller
+/// constrains the radius). With `warm`, Newton is first tried straight from that state at the
+/// target pressure (e.g. the previous design of an optimiser, or the nominal state of a finite
+/// difference); if it fails, the pressure is ramped from the unloaded state.
+pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Option<&[f64]>) -> Equilibrium {
+    let target = sm.loads(p_kpa, 0.0);
+    let mut iterations = 0;
+    if let Some(w) = warm.filter(|w| w.len() == sm.model.n_reduced()) {
+        let mut q = w.to_vec();
+        match twistopt_solver::solve::newton(&sm.model, &mut q, &target, &opts.steps.newton) {
+            Ok((stats, a)) => {
+                let record = sm.record(&a, &target, &q, stats.iterations);
+                return Equilibrium { q, loads: target, record, newton_iterations: stats.iterations, end: None, warm_started: true };
+            }
+            Err(_) => iterations += opts.steps.newton.max_iter,
+        }
+    }
+    let mut o = opts.clone();
+    o.ballooning_limit_mm = f64::INFINITY;
+    o.keep_fields = false;
+    let mut ramp = Ramp::new(sm, &o);
+    let end = ramp.go(target);
+    let record = match ramp.steps.last() {
+        Some(r) => r.clone(),
+        None => {
+            let l0 = sm.loads(0.0, 0.0);
+            let a = sm.model.assemble(&ramp.q, &l0, false);
+            match a {
+                Ok(a) => sm.record(&a, &l0, &ramp.q, 0),
+                Err(_) => StepRecord { p_kpa: 0.0, theta_deg: 0.0, axial_mm: 0.0, tau_nm: 0.0, max_radius_mm: 0.0, cavity_volume_mm3: 0.0, min_det_f: 1.0, newton_iterations: 0 },
+            }
+        }
+    };
+    Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: iterations + ramp.iterations, end, warm_started: false }
+}
+
 /// Ramp a scene's pressure through the given targets (kPa). Positive and negative targets are
 /// two branches, each ramped from the unloaded state through its targets in order of magnitude;
 /// a branch ends at its last target, at the ballooning limit, at self-contact (vacuum) or at a

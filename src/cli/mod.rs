@@ -5,6 +5,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod evaluate;
+pub mod gradient;
 pub mod geometry;
 
 /// twistopt — design optimisation of soft twisting pneumatic actuators.
@@ -14,7 +15,7 @@ pub mod geometry;
 /// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
 ///
 /// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports) and `evaluate` (FE
-/// load scenes of a problem file). Gradients and the optimiser are in progress. Run `twistopt <COMMAND> --help` for the options.
+/// load scenes of a problem file), `gradient` (adjoint sensitivities). The optimiser is in progress. Run `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
 #[command(name = "twistopt", version, propagate_version = true)]
 pub struct Cli {
@@ -31,6 +32,10 @@ pub enum Command {
     /// density and torque-rotation; write result.json, CSV tables, PNG/SVG plots and ParaView
     /// series to an output directory.
     Evaluate(evaluate::EvaluateArgs),
+    /// Values and adjoint gradients of θ, τ, axial displacement, cavity volume, max radius (KS)
+    /// and Ω with respect to every design parameter, the pressure and μ at one pressure; with
+    /// --check-fd, central finite differences with a step study. Writes DIR/gradient.json.
+    Gradient(gradient::GradientArgs),
 }
 
 /// Run a parsed command line.
@@ -38,5 +43,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Geometry(args) => geometry::run(&args),
         Command::Evaluate(args) => evaluate::run(&args),
+        Command::Gradient(args) => gradient::run(&args),
     }
 }

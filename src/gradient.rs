@@ -29,7 +29,7 @@ use std::time::Instant;
 
 use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
 use crate::meshing::mesh_shape_derivatives;
-use crate::scene::{equilibrium, SceneError, SceneKind, SceneModel, SceneOptions};
+use crate::scene::{continue_to_failure, equilibrium, SceneError, SceneKind, SceneModel, SceneOptions};
 use twistopt_solver::adjoint::{self, Direction, Functional};
 use twistopt_solver::material::Material;
 use twistopt_solver::solve::factor_converged;
@@ -53,6 +53,9 @@ pub struct Cost {
     pub forward_time_s: f64,
     pub gradient_time_s: f64,
     pub warm_started: bool,
+    /// Newton iterations and time of the limit search
+    pub limit_newton_iterations: usize,
+    pub limit_time_s: f64,
 }
 
 /// Values and gradients of one scene at one pressure.
@@ -75,6 +78,13 @@ pub struct SceneGradient {
     pub ks_gap_mm: f64,
     pub min_det_f: f64,
     pub dofs: usize,
+    /// with a limit search: the pressure (kPa) at which the ramp continued from p fails (the
+    /// pressure maximum / instability; at the last converged state), None = no failure up to the
+    /// cap; and dp_lim/d(parameter) by the null-vector formula ([`adjoint::limit_sensitivity`])
+    #[serde(rename = "p_limit_kPa")]
+    pub p_limit_kpa: Option<f64>,
+    pub p_limit_cause: Option<String>,
+    pub p_limit_gradient: BTreeMap<String, f64>,
     pub cost: Cost,
     /// reduced state (for warm starts of the next evaluation)
     #[serde(skip)]
@@ -115,15 +125,18 @@ fn directions(geom: &ActuatorGeometry, opts: &SceneOptions, sm: &SceneModel) -> 
     Ok(dirs)
 }
 
-/// Values and adjoint gradients of a scene's functionals at pressure `p_kpa`. `warm` is a reduced
-/// state of the same mesh topology to start Newton from (e.g. the previous design's `q`).
+/// Values and adjoint gradients of a scene's functionals at pressure `p_kpa`. `warm` = (q, p) is
+/// a converged state of the same mesh topology to continue from (e.g. the previous design's).
+/// With `limit_cap`, the pressure is also continued from p up to that cap to find where the
+/// scene fails (its pressure maximum) and the sensitivity of that limit pressure.
 pub fn scene_gradient(
     geom: &ActuatorGeometry,
     opts: &SceneOptions,
     kind: SceneKind,
     p_kpa: f64,
     rho: f64,
-    warm: Option<&[f64]>,
+    warm: Option<(&[f64], f64)>,
+    limit_cap: Option<f64>,
 ) -> Result<SceneGradient, SceneError> {
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
@@ -143,6 +156,9 @@ pub fn scene_gradient(
         ks_gap_mm: f64::NAN,
         min_det_f: eq.record.min_det_f,
         dofs: sm.model.n_reduced(),
+        p_limit_kpa: None,
+        p_limit_cause: None,
+        p_limit_gradient: BTreeMap::new(),
         cost: Cost { newton_iterations: eq.newton_iterations, forward_time_s, warm_started: eq.warm_started, ..Default::default() },
         q: eq.q.clone(),
     };
@@ -193,6 +209,30 @@ pub fn scene_gradient(
         Err(e) => failed(&mut out, e.to_string()),
     }
     out.cost.gradient_time_s = t1.elapsed().as_secs_f64();
+    if let Some(cap) = limit_cap {
+        let t2 = Instant::now();
+        // the limit state: this one if the ramp already failed before p, else continue upward
+        let cont = continue_to_failure(&sm, opts, &eq, cap);
+        let lim = if eq.end.is_some() { Some(&eq) } else { cont.as_ref() };
+        if let Some(l) = lim {
+            out.p_limit_kpa = Some(l.record.p_kpa);
+            out.p_limit_cause = l.end.as_ref().map(|e| e.0.clone());
+            out.cost.limit_newton_iterations = cont.as_ref().map(|c| c.newton_iterations).unwrap_or(0);
+            let shape_dirs: Vec<Direction> = dirs.iter().filter(|d| d.name != P_PRESSURE).cloned().collect();
+            let sens = sm.model.assemble(&l.q, &l.loads, true).ok().and_then(|a| {
+                let k = a.k?;
+                let f = sm.model.factor(&k).ok()?;
+                adjoint::limit_sensitivity(&sm.model, &l.q, &l.loads, &f, &k, &shape_dirs).ok()
+            });
+            if let Some(sens) = sens {
+                // dp (MPa) → kPa
+                for (d, v) in shape_dirs.iter().zip(&sens.dp) {
+                    out.p_limit_gradient.insert(d.name.clone(), v * 1e3);
+                }
+            }
+        }
+        out.cost.limit_time_s = t2.elapsed().as_secs_f64();
+    }
     Ok(out)
 }
 
@@ -269,7 +309,7 @@ fn perturbed(
     };
     let mut o2 = o2;
     o2.steps.newton.rtol = o2.steps.newton.rtol.min(1e-12);
-    let r = scene_values(&g2, &o2, kind, p2, rho, Some(&base.q))?;
+    let r = scene_values(&g2, &o2, kind, p2, rho, Some((&base.q, base.p_kpa)))?;
     Some(r)
 }
 
@@ -281,7 +321,7 @@ fn in_box(d: &Design) -> bool {
 }
 
 /// Values only (no gradient) at a perturbed input: warm Newton (falls back to a ramp).
-fn scene_values(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, warm: Option<&[f64]>) -> Option<BTreeMap<String, f64>> {
+fn scene_values(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, warm: Option<(&[f64], f64)>) -> Option<BTreeMap<String, f64>> {
     let sm = SceneModel::build(geom, opts, kind).ok()?;
     let eq = equilibrium(&sm, opts, p_kpa, warm);
     if eq.end.is_some() {
@@ -423,8 +463,9 @@ pub fn omega_gradient(free: &SceneGradient, held: &SceneGradient) -> Option<Omeg
     Some(OmegaGradient { value: k * th * tau, gradient, valid })
 }
 
-/// Warm-start states per scene (from a previous [`DesignGradient`] of the same mesh topology).
-pub type WarmStarts = BTreeMap<String, Vec<f64>>;
+/// Warm-start states per scene: (pressure in kPa, reduced state), from a previous
+/// [`DesignGradient`] of the same mesh topology.
+pub type WarmStarts = BTreeMap<String, (f64, Vec<f64>)>;
 
 /// The library call for optimisers: values and adjoint gradients of every scene's functionals
 /// and of Ω for one design at pressure `p_kpa`, with work counts and wall times. Scenes run in
@@ -436,6 +477,7 @@ pub fn design_gradient(
     p_kpa: f64,
     rho: f64,
     warm: Option<&WarmStarts>,
+    limit_cap: Option<f64>,
 ) -> Result<DesignGradient, SceneError> {
     let mut out = DesignGradient {
         design: geom.design.values.clone(),
@@ -448,8 +490,8 @@ pub fn design_gradient(
         gradient_time_s: 0.0,
     };
     for &kind in scenes {
-        let w = warm.and_then(|w| w.get(kind.name())).map(|v| v.as_slice());
-        let g = scene_gradient(geom, opts, kind, p_kpa, rho, w)?;
+        let w = warm.and_then(|w| w.get(kind.name())).map(|(p, q)| (q.as_slice(), *p));
+        let g = scene_gradient(geom, opts, kind, p_kpa, rho, w, limit_cap)?;
         out.newton_iterations += g.cost.newton_iterations;
         out.adjoint_solves += g.cost.adjoint_solves;
         out.forward_time_s += g.cost.forward_time_s;
@@ -469,6 +511,6 @@ pub fn design_gradient(
 impl DesignGradient {
     /// The converged states by scene, to warm-start the next design.
     pub fn warm_starts(&self) -> WarmStarts {
-        self.scenes.iter().map(|(k, g)| (k.clone(), g.q.clone())).collect()
+        self.scenes.iter().map(|(k, g)| (k.clone(), (g.p_kpa, g.q.clone()))).collect()
     }
 }

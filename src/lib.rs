@@ -15,6 +15,7 @@ pub mod export;
 pub mod geometry;
 pub mod gradient;
 pub mod meshing;
+pub mod optimise;
 pub mod plot;
 pub mod problem;
 pub mod scene;

@@ -73,6 +73,70 @@ pub struct Problem {
     pub fidelity: FidelitySection,
     #[serde(default)]
     pub output: OutputSection,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optimise: Option<OptimiseSection>,
+}
+
+/// `[optimise]`: what `twistopt optimise` maximises and how (see [`crate::optimise`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimiseSection {
+    /// `energy-density` (Ω = τθ/(8V) of the rotation-free and rotation-held scenes), `twist` (|θ|)
+    /// or `torque` (|τ|)
+    #[serde(default = "default_objective")]
+    pub objective: String,
+    /// the variables; the others stay at [design] (and p at load.p_max_kPa)
+    #[serde(default = "default_variables")]
+    pub variables: Vec<String>,
+    /// lower bound of the pressure variable (kPa); the upper bound is load.p_max_kPa
+    #[serde(rename = "p_min_kPa", default = "default_p_min")]
+    pub p_min_kpa: f64,
+    /// any of `mma`, `slsqp` (nlopt; cargo feature `nlopt`) and `sqp` (pure Rust, clarabel QPs)
+    #[serde(default = "default_optimisers")]
+    pub optimisers: Vec<String>,
+    /// number of space-filling starting designs
+    #[serde(default = "default_starts")]
+    pub starts: usize,
+    /// FE design evaluations per optimiser run (each = every scene's forward solve + adjoint)
+    #[serde(default = "default_max_evaluations")]
+    pub max_evaluations: usize,
+    /// stop when the scaled design moves less than this (relative)
+    #[serde(default = "default_xtol")]
+    pub xtol_rel: f64,
+    /// stop when the objective changes less than this (relative)
+    #[serde(default = "default_ftol")]
+    pub ftol_rel: f64,
+    /// KS aggregation parameter of the max radius (1/mm)
+    #[serde(rename = "ks_rho_per_mm", default = "default_ks_rho")]
+    pub ks_rho_per_mm: f64,
+}
+
+fn default_objective() -> String {
+    "energy-density".into()
+}
+fn default_variables() -> Vec<String> {
+    vec!["r_mm".into(), "l_mm".into(), "alpha_deg".into(), "p_kPa".into()]
+}
+fn default_p_min() -> f64 {
+    5.0
+}
+fn default_optimisers() -> Vec<String> {
+    vec!["mma".into(), "slsqp".into()]
+}
+fn default_starts() -> usize {
+    3
+}
+fn default_max_evaluations() -> usize {
+    100
+}
+fn default_xtol() -> f64 {
+    1e-4
+}
+fn default_ftol() -> f64 {
+    1e-6
+}
+fn default_ks_rho() -> f64 {
+    crate::gradient::DEFAULT_KS_RHO_PER_MM
 }
 
 /// Which design box the design is validated against.

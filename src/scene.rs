@@ -404,25 +404,36 @@ pub struct Equilibrium {
 }
 
 /// The equilibrium of a scene at pressure `p_kpa`, without the ballooning stop (the caller
-/// constrains the radius). With `warm`, Newton is first tried straight from that state at the
-/// target pressure (e.g. the previous design of an optimiser, or the nominal state of a finite
-/// difference); if it fails, the pressure is ramped from the unloaded state.
-pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Option<&[f64]>) -> Equilibrium {
+/// constrains the radius). With `warm` = (q, p_warm), a converged state of a nearby design (same
+/// mesh topology) at pressure p_warm, Newton first solves the new design at p_warm from q and the
+/// pressure then follows from p_warm to p_kpa (a short continuation); if that first solve fails,
+/// the pressure is ramped from the unloaded state.
+pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Option<(&[f64], f64)>) -> Equilibrium {
     let target = sm.loads(p_kpa, 0.0);
+    let mut o = opts.clone();
+    o.ballooning_limit_mm = f64::INFINITY;
+    o.keep_fields = false;
     let mut iterations = 0;
-    if let Some(w) = warm.filter(|w| w.len() == sm.model.n_reduced()) {
+    if let Some((w, pw)) = warm.filter(|w| w.0.len() == sm.model.n_reduced() && w.1.is_finite()) {
         let mut q = w.to_vec();
-        match twistopt_solver::solve::newton(&sm.model, &mut q, &target, &opts.steps.newton) {
+        let start = sm.loads(pw, 0.0);
+        match twistopt_solver::solve::newton(&sm.model, &mut q, &start, &opts.steps.newton) {
             Ok((stats, a)) => {
-                let record = sm.record(&a, &target, &q, stats.iterations);
-                return Equilibrium { q, loads: target, record, newton_iterations: stats.iterations, end: None, warm_started: true };
+                iterations += stats.iterations;
+                if pw == p_kpa {
+                    let record = sm.record(&a, &target, &q, stats.iterations);
+                    return Equilibrium { q, loads: target, record, newton_iterations: iterations, end: None, warm_started: true };
+                }
+                let mut ramp = Ramp::new(sm, &o);
+                ramp.q = q;
+                ramp.loads = start;
+                let end = ramp.go(target);
+                let record = ramp.steps.last().cloned().unwrap_or_else(|| sm.record(&a, &ramp.loads, &ramp.q, 0));
+                return Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: iterations + ramp.iterations, end, warm_started: true };
             }
             Err(_) => iterations += opts.steps.newton.max_iter,
         }
     }
-    let mut o = opts.clone();
-    o.ballooning_limit_mm = f64::INFINITY;
-    o.keep_fields = false;
     let mut ramp = Ramp::new(sm, &o);
     let end = ramp.go(target);
     let record = match ramp.steps.last() {
@@ -437,6 +448,24 @@ pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Optio
         }
     };
     Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: iterations + ramp.iterations, end, warm_started: false }
+}
+
+/// Continue an equilibrium's pressure upward to `p_cap` (kPa) without the ballooning stop:
+/// None when the ramp reaches the cap, else the last converged state before the failure (the
+/// pressure maximum, for a limit point) with the failure in `end`.
+pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibrium, p_cap: f64) -> Option<Equilibrium> {
+    if from.end.is_some() || p_cap <= from.loads.pressure * 1e3 {
+        return None;
+    }
+    let mut o = opts.clone();
+    o.ballooning_limit_mm = f64::INFINITY;
+    o.keep_fields = false;
+    let mut ramp = Ramp::new(sm, &o);
+    ramp.q = from.q.clone();
+    ramp.loads = from.loads.clone();
+    let end = ramp.go(sm.loads(p_cap, 0.0))?;
+    let record = ramp.steps.last().cloned().unwrap_or_else(|| from.record.clone());
+    Some(Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: ramp.iterations, end: Some(end), warm_started: false })
 }
 
 /// Ramp a scene's pressure through the given targets (kPa). Positive and negative targets are

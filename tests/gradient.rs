@@ -22,7 +22,7 @@ fn check_design(r: f64, l: f64, alpha: f64) {
     let g = ActuatorGeometry::new(&Design::new(r, l, alpha), RangePolicy::TableI).unwrap();
     let o = opts();
     for kind in [SceneKind::Free, SceneKind::Blocked, SceneKind::PureTwist] {
-        let sg = scene_gradient(&g, &o, kind, P_KPA, DEFAULT_KS_RHO_PER_MM, None).unwrap();
+        let sg = scene_gradient(&g, &o, kind, P_KPA, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
         assert_eq!(sg.status, "converged", "{kind:?} at ({r}, {l}, {alpha}): {}", sg.cause);
         assert!(sg.ks_gap_mm >= 0.0 && sg.ks_gap_mm < 0.3, "KS gap {}", sg.ks_gap_mm);
         // every functional has a gradient w.r.t. r, l, α, p, μ
@@ -72,8 +72,8 @@ fn gradient_is_path_independent() {
     let mut b = opts();
     b.steps.initial = 0.05;
     b.steps.max = 0.1;
-    let ga = scene_gradient(&g, &a, SceneKind::Free, 25.0, DEFAULT_KS_RHO_PER_MM, None).unwrap();
-    let gb = scene_gradient(&g, &b, SceneKind::Free, 25.0, DEFAULT_KS_RHO_PER_MM, None).unwrap();
+    let ga = scene_gradient(&g, &a, SceneKind::Free, 25.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
+    let gb = scene_gradient(&g, &b, SceneKind::Free, 25.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
     assert_ne!(gb.cost.newton_iterations, ga.cost.newton_iterations, "the histories differ");
     for (f, grad) in &ga.gradients {
         for (p, v) in grad {

@@ -467,6 +467,56 @@ pub fn sensitivities(
     Ok(Sensitivities { values, gradients, linear_solves: solves, dual_evaluations: evals })
 }
 
+/// Sensitivity of a pressure limit point (the pressure maximum of a pressure-controlled path).
+#[derive(Clone, Debug)]
+pub struct LimitSensitivity {
+    /// dp_lim/ds_k per direction (p in the model's pressure unit)
+    pub dp: Vec<f64>,
+    /// φᵀKφ/φᵀφ of the approximate null vector: how close the state is to singular
+    pub rayleigh: f64,
+}
+
+/// Sensitivity of the limit pressure at (or just before) a pressure maximum: with φ the null
+/// vector of the tangent (K φ = 0 at the limit point), differentiating r(q, p, s) = 0 along the
+/// limit-point curve and multiplying by φ gives
+///
+///   dp_lim/ds = −φᵀ ∂r/∂s / φᵀ ∂r/∂p.
+///
+/// φ comes from inverse iteration with the (nearly singular, still positive definite) factor of
+/// the last converged state before the limit point, so the result approximates the derivative at
+/// the limit point to the distance of that state from it.
+pub fn limit_sensitivity(model: &Model, q: &[f64], loads: &Loads, factor: &Factor, k_values: &[f64], directions: &[Direction]) -> Result<LimitSensitivity, AdjointError> {
+    let n = model.n_reduced();
+    let mut phi: Vec<f64> = (0..n).map(|i| 1.0 + 0.1 * ((i as f64) * 0.7548776662).fract()).collect();
+    for _ in 0..8 {
+        let next = factor.solve(&phi)?;
+        let norm = next.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if !(norm.is_finite() && norm > 0.0) {
+            return Err(AdjointError::NonFinite(0));
+        }
+        phi = next.iter().map(|v| v / norm).collect();
+    }
+    let kphi = model.sym_matvec(k_values, &phi);
+    let rayleigh = phi.iter().zip(&kphi).map(|(a, b)| a * b).sum::<f64>();
+    let dot = |v: &[f64]| phi.iter().zip(v).map(|(a, b)| a * b).sum::<f64>();
+    let drp = dual_state(model, q, loads, &Direction { dpressure: 1.0, ..Default::default() }, None)?;
+    let denom = dot(&drp.r.iter().map(|v| v.eps).collect::<Vec<_>>());
+    if denom == 0.0 || !denom.is_finite() {
+        return Err(AdjointError::Input("the pressure does not load the limit mode".into()));
+    }
+    let mut dp = Vec::with_capacity(directions.len());
+    for dir in directions {
+        let ds = dual_state(model, q, loads, dir, None)?;
+        let num = dot(&ds.r.iter().map(|v| v.eps).collect::<Vec<_>>());
+        let v = -num / denom;
+        if !v.is_finite() {
+            return Err(AdjointError::NonFinite(0));
+        }
+        dp.push(v);
+    }
+    Ok(LimitSensitivity { dp, rayleigh })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

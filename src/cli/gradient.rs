@@ -65,7 +65,7 @@ pub fn run(args: &GradientArgs) -> Result<()> {
     }
     let opts = problem.scene_options(&v);
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
-    let dg = design_gradient(&v.geometry, &opts, &v.scenes, p, args.ks_rho, None)?;
+    let dg = design_gradient(&v.geometry, &opts, &v.scenes, p, args.ks_rho, None, None)?;
     let mut doc = serde_json::to_value(&dg)?;
     doc["fidelity"] = json!(v.mesh.size_string());
     doc["element"] = json!(format!("{:?}", opts.formulation.kind));

@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 
 pub mod evaluate;
 pub mod gradient;
+pub mod optimise;
 pub mod geometry;
 
 /// twistopt — design optimisation of soft twisting pneumatic actuators.
@@ -15,7 +16,7 @@ pub mod geometry;
 /// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
 ///
 /// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports) and `evaluate` (FE
-/// load scenes of a problem file), `gradient` (adjoint sensitivities). The optimiser is in progress. Run `twistopt <COMMAND> --help` for the options.
+/// load scenes of a problem file), `gradient` (adjoint sensitivities), `optimise` (gradient-based design optimisation). Run `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
 #[command(name = "twistopt", version, propagate_version = true)]
 pub struct Cli {
@@ -36,6 +37,10 @@ pub enum Command {
     /// and Ω with respect to every design parameter, the pressure and μ at one pressure; with
     /// --check-fd, central finite differences with a step study. Writes DIR/gradient.json.
     Gradient(gradient::GradientArgs),
+    /// Maximise energy density, twist or torque over the design and the pressure under the
+    /// ballooning limit (problem file [optimise] section): nlopt MMA/SLSQP and a pure-Rust SQP,
+    /// multi-start in parallel. Writes DIR/history.json, DIR/best.json and convergence plots.
+    Optimise(optimise::OptimiseArgs),
 }
 
 /// Run a parsed command line.
@@ -44,5 +49,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Geometry(args) => geometry::run(&args),
         Command::Evaluate(args) => evaluate::run(&args),
         Command::Gradient(args) => gradient::run(&args),
+        Command::Optimise(args) => optimise::run(&args),
     }
 }

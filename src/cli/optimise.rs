@@ -1,0 +1,166 @@
+//! `twistopt optimise`: gradient-based optimisation of a problem file's `[optimise]` section
+//! (see [`crate::optimise`]); writes DIR/history.json, DIR/best.json and convergence plots.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use serde_json::{json, Value};
+
+use crate::evaluate::write_json_atomic;
+use crate::optimise::{build_problem, run_all, starting_points, Objective, RunResult, FEAS_TOL};
+use crate::plot::{line_plot, LinePlot, Series};
+use crate::problem::Problem;
+
+#[derive(Debug, Args)]
+pub struct OptimiseArgs {
+    /// Problem file with an [optimise] section (schema in problems/README.md).
+    #[arg(value_name = "PROBLEM.toml")]
+    pub problem: PathBuf,
+    /// Override a problem value: section.key=value (repeatable; e.g. --set optimise.starts=1).
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
+    pub set: Vec<String>,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &OptimiseArgs) -> Result<()> {
+    let problem = Problem::load(&args.problem, &args.set)?;
+    let v = problem.validate()?;
+    let (op, sec) = build_problem(&problem, &v)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let starts = starting_points(op.n(), sec.starts);
+    let t0 = std::time::Instant::now();
+    println!(
+        "optimise {} over {} with {} from {} starts ({} scenes per evaluation, mesh {}, at most {} evaluations per run)",
+        op.objective.name(),
+        op.variables.iter().map(|v| v.name.as_str()).collect::<Vec<_>>().join(", "),
+        sec.optimisers.join(", "),
+        starts.len(),
+        op.scenes.len(),
+        v.mesh.size_string(),
+        op.max_evaluations
+    );
+    let runs = run_all(&op, &sec.optimisers, &starts, |r| {
+        let b = r.best.map(|i| &r.evaluations[i]);
+        println!(
+            "  {} start {}: {} after {} evaluations in {:.1} s; best {}",
+            r.optimiser,
+            r.start,
+            r.status,
+            r.evaluations.len(),
+            r.wall_time_s,
+            b.map(|e| format!("{:.4} at {}", e.objective, fmt_design(&e.design))).unwrap_or_else(|| "none feasible".into())
+        );
+    });
+    let (oref_unit, unit) = (op.objective.reference().0, op.objective.reference().1);
+    let _ = oref_unit;
+    // history.json
+    let hist_runs: Vec<Value> = runs
+        .iter()
+        .map(|r| {
+            let evs: Vec<Value> = r
+                .evaluations
+                .iter()
+                .enumerate()
+                .map(|(k, e)| {
+                    let mut j = serde_json::to_value(e).unwrap_or(Value::Null);
+                    j["evaluation"] = json!(k + 1);
+                    j["cumulative_evaluations"] = json!(k + 1);
+                    j["best_so_far"] = json!(r.evaluations[..=k].iter().filter(|e| e.feasible).map(|e| e.objective).fold(f64::NAN, f64::max));
+                    j
+                })
+                .collect();
+            json!({
+                "optimiser": r.optimiser, "start": r.start, "x0": r.x0, "status": r.status,
+                "wall_time_s": r.wall_time_s, "best_evaluation": r.best.map(|b| b + 1),
+                "kkt": r.kkt, "multipliers": r.multipliers, "evaluations": evs,
+            })
+        })
+        .collect();
+    let history = json!({
+        "objective": op.objective.name(), "objective_unit": unit,
+        "variables": op.variables, "fixed": op.fixed, "constraints": "radius:<scene> = (KS max radius − limit)/(limit − 20 mm) <= 0; stability = (p − (1 − margin)·p_limit)/(p range) <= 0", "stability_margin": crate::optimise::STABILITY_MARGIN,
+        "ballooning_limit_mm": op.ballooning_limit_mm, "ks_rho_per_mm": op.ks_rho,
+        "mesh": v.mesh.size_string(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
+        "runs": hist_runs, "wall_time_s": t0.elapsed().as_secs_f64(),
+    });
+    write_json_atomic(&args.out.join("history.json"), &history)?;
+    // best.json
+    let best = best_json(&op.objective, &runs, &op.fixed);
+    write_json_atomic(&args.out.join("best.json"), &best)?;
+    println!("best: {}", serde_json::to_string(&best["summary"]).unwrap_or_default());
+    plots(&args.out, &runs, unit)?;
+    println!("wrote history.json, best.json and plots to {} in {:.1} s", args.out.display(), t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn fmt_design(d: &std::collections::BTreeMap<String, f64>) -> String {
+    d.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect::<Vec<_>>().join(", ")
+}
+
+fn best_json(obj: &Objective, runs: &[RunResult], fixed: &std::collections::BTreeMap<String, f64>) -> Value {
+    let total: usize = runs.iter().map(|r| r.evaluations.len()).sum();
+    let best = runs.iter().filter_map(|r| r.best.map(|b| (r, &r.evaluations[b]))).max_by(|a, b| a.1.objective.total_cmp(&b.1.objective));
+    let per_run: Vec<Value> = runs
+        .iter()
+        .map(|r| {
+            let b = r.best.map(|i| &r.evaluations[i]);
+            json!({
+                "optimiser": r.optimiser, "start": r.start, "status": r.status,
+                "objective": b.map(|e| e.objective), "design": b.map(|e| &e.design),
+                "evaluations": r.evaluations.len(), "evaluations_to_best": r.best.map(|i| i + 1),
+                "kkt": r.kkt, "wall_time_s": r.wall_time_s,
+            })
+        })
+        .collect();
+    let objs: Vec<f64> = runs.iter().filter_map(|r| r.best.map(|i| r.evaluations[i].objective)).collect();
+    let spread = match (objs.iter().copied().reduce(f64::max), objs.iter().copied().reduce(f64::min)) {
+        (Some(a), Some(b)) if a != 0.0 => Some((a - b) / a.abs()),
+        _ => None,
+    };
+    let mut out = match best {
+        Some((r, e)) => {
+            let g = |k: &str| e.design.get(k).copied().or_else(|| fixed.get(k).copied());
+            json!({
+                "r_mm": g("r_mm"), "l_mm": g("l_mm"), "alpha_deg": g("alpha_deg"), "p_kPa": g("p_kPa"),
+                "theta_deg": e.theta_deg, "tau_Nm": e.tau_nm,
+                "omega_J_m3": if *obj == Objective::EnergyDensity { Some(e.objective) } else { e.theta_deg.zip(e.tau_nm).map(|(t, q)| crate::scene::energy_density(t, q)) },
+                "objective": e.objective, "max_radius_mm": e.max_radius_mm, "constraints": e.constraints,
+                "evaluations": total, "status": if r.kkt.is_some_and(|k| k < 1e-2) { "optimal" } else { "feasible" },
+                "optimiser": r.optimiser, "start": r.start, "kkt": r.kkt,
+                "constraint_tolerance": FEAS_TOL,
+            })
+        }
+        None => json!({
+            "r_mm": null, "l_mm": null, "alpha_deg": null, "p_kPa": null, "theta_deg": null, "tau_Nm": null,
+            "omega_J_m3": null, "max_radius_mm": null, "evaluations": total, "status": "infeasible",
+        }),
+    };
+    out["runs"] = json!(per_run);
+    out["spread_of_best_objective"] = json!(spread);
+    out["summary"] = json!({"objective": out["objective"], "design": [out["r_mm"], out["l_mm"], out["alpha_deg"], out["p_kPa"]], "evaluations": total, "spread": spread});
+    out
+}
+
+fn plots(dir: &std::path::Path, runs: &[RunResult], unit: &str) -> Result<()> {
+    let mut po = LinePlot::new("Objective per evaluation", "evaluation", format!("objective ({unit})"));
+    let mut pc = LinePlot::new("Ballooning constraint per evaluation", "evaluation", "max over scenes of (KS radius − limit)/(limit − R)");
+    for r in runs {
+        let name = format!("{} start {}", r.optimiser, r.start);
+        po.series.push(Series::new(name.clone(), r.evaluations.iter().enumerate().filter(|(_, e)| e.objective.is_finite()).map(|(k, e)| ((k + 1) as f64, e.objective)).collect()));
+        pc.series.push(Series::new(
+            name,
+            r.evaluations
+                .iter()
+                .enumerate()
+                .map(|(k, e)| ((k + 1) as f64, e.constraints.iter().filter(|(n, _)| n.starts_with("radius")).map(|(_, v)| *v).fold(f64::NEG_INFINITY, f64::max)))
+                .filter(|(_, v)| v.is_finite())
+                .collect(),
+        ));
+    }
+    line_plot(&dir.join("objective"), &po)?;
+    line_plot(&dir.join("constraint"), &pc)?;
+    Ok(())
+}

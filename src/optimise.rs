@@ -1,0 +1,948 @@
+//! Gradient-based design optimisation on the FE model with adjoint gradients.
+//!
+//! # Problem
+//! Maximise an objective of the design and the pressure — the energy density Ω = τθ/(8V) (θ from
+//! the rotation-free scene, τ from the rotation-held scene, both at the same pressure p), |θ| or
+//! |τ| — over the chosen variables (by default r, l, α inside the letter's Table-I box and
+//! p ∈ [p_min, p_max]) subject to the ballooning limit in every scene: the KS aggregate of the
+//! deformed outer radius ≤ the limit (1.15·R0). The KS value bounds the true max from above, so a
+//! KS-feasible design is feasible.
+//!
+//! # Scaling and stopping
+//! Variables are scaled to [0, 1] by their bounds. The objective is minimised as −objective / its
+//! reference (100 J/m³, 10°, 0.1 N·m); a radius constraint is (KS − limit) / (limit − R).
+//! Optimisers stop at `max_evaluations` FE evaluations, when the scaled step is below `xtol_rel`,
+//! or when the objective changes by less than `ftol_rel` (relative).
+//!
+//! # Stability: the pressure maximum
+//! Under pressure control an inflated tube has a pressure maximum (limit point) beyond which it
+//! snaps through and balloons; on this geometry that, not the radius limit, usually ends a ramp
+//! (the letter's "analysis fails ... when the ballooning effect occurs"). Each evaluation
+//! therefore continues every scene's ramp from p up to the pressure bound p_max to find its
+//! failure pressure p_lim (at the last converged state) and its design sensitivity by the
+//! null-vector formula dp_lim/ds = −φᵀ∂r/∂s / φᵀ∂r/∂p ([`twistopt_solver::adjoint::limit_sensitivity`]).
+//! The constraint `stability` = (p − (1 − m)·min p_lim)/(p_max − p_min) ≤ 0, m =
+//! [`STABILITY_MARGIN`], is then smooth with a gradient in every variable; without a failure below
+//! p_max it is (p − p_max)/(p_max − p_min).
+//!
+//! A design whose ramp fails before p has no stable equilibrium at p: the evaluation reports the
+//! values and gradients at the last converged pressure (status `failed-before-p`) and is
+//! infeasible through the stability constraint, so the optimiser backs off. An evaluation that
+//! cannot be built at all (invalid geometry) is infeasible with the value and gradient of the last
+//! good point. Nothing is lost: every evaluation is a row of the history with its status.
+//!
+//! # Optimisers
+//! Behind [`Optimiser`]: nlopt MMA and SLSQP (cargo feature `nlopt`, default on; the bundled C
+//! library is LGPL) and a pure-Rust trust-region SQP whose QP subproblems clarabel solves (elastic
+//! constraints so that every subproblem is feasible, ℓ1 merit function, damped BFGS Hessian).
+//! Runs (optimiser × start) go in parallel with rayon; the evaluations of a run are sequential,
+//! each warm-started from the previous converged states.
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use crate::geometry::{ActuatorGeometry, DesignSpace, RangePolicy, R_TUBE};
+use crate::gradient::{design_gradient, DesignGradient, WarmStarts, P_PRESSURE};
+use crate::scene::{SceneKind, SceneOptions};
+
+/// What to maximise.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Objective {
+    EnergyDensity,
+    Twist,
+    Torque,
+}
+
+impl Objective {
+    pub fn parse(s: &str) -> Option<Objective> {
+        match s {
+            "energy-density" => Some(Objective::EnergyDensity),
+            "twist" => Some(Objective::Twist),
+            "torque" => Some(Objective::Torque),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Objective::EnergyDensity => "energy-density",
+            Objective::Twist => "twist",
+            Objective::Torque => "torque",
+        }
+    }
+    /// Reference value that scales the objective (and its unit).
+    pub fn reference(self) -> (f64, &'static str) {
+        match self {
+            Objective::EnergyDensity => (100.0, "J/m3"),
+            Objective::Twist => (10.0, "deg"),
+            Objective::Torque => (0.1, "N*m"),
+        }
+    }
+}
+
+/// A bounded variable.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Variable {
+    pub name: String,
+    pub lower: f64,
+    pub upper: f64,
+}
+
+/// Everything an optimisation run needs.
+#[derive(Clone, Debug)]
+pub struct OptProblem {
+    pub objective: Objective,
+    /// the scenes evaluated at every design (rotation-free and/or rotation-held)
+    pub scenes: Vec<SceneKind>,
+    pub variables: Vec<Variable>,
+    /// values of every design parameter and of p_kPa (the fixed ones stay at these)
+    pub fixed: BTreeMap<String, f64>,
+    pub policy: RangePolicy,
+    pub opts: SceneOptions,
+    pub ks_rho: f64,
+    pub ballooning_limit_mm: f64,
+    pub max_evaluations: usize,
+    pub xtol_rel: f64,
+    pub ftol_rel: f64,
+}
+
+/// One FE evaluation in the optimiser's terms (minimisation, scaled variables).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Evaluation {
+    /// scaled variables in [0, 1]
+    pub x: Vec<f64>,
+    /// design parameters and p by name
+    pub design: BTreeMap<String, f64>,
+    /// the objective in its unit (Ω in J/m³, |θ| in °, |τ| in N·m)
+    pub objective: f64,
+    /// d objective / d variable (unscaled units)
+    pub gradient: BTreeMap<String, f64>,
+    /// constraints ≤ 0 (scaled): `radius:<scene>` and `stability`
+    pub constraints: BTreeMap<String, f64>,
+    pub feasible: bool,
+    pub theta_deg: Option<f64>,
+    #[serde(rename = "tau_Nm")]
+    pub tau_nm: Option<f64>,
+    /// true max deformed radius over the scenes
+    pub max_radius_mm: f64,
+    /// the lowest pressure maximum of the scenes found by continuing the ramp from p up to the
+    /// pressure bound (None: none below the bound)
+    #[serde(rename = "p_limit_kPa")]
+    pub p_limit_kpa: Option<f64>,
+    /// per scene: status (converged, or what ended the ramp) and the pressure reached
+    pub scenes: BTreeMap<String, (String, f64)>,
+    pub status: String,
+    pub newton_iterations: usize,
+    pub adjoint_solves: usize,
+    pub time_s: f64,
+    pub warm_started: bool,
+    /// scaled objective f = −objective/reference and its gradient in x; constraint Jacobian
+    #[serde(skip)]
+    pub f: f64,
+    #[serde(skip)]
+    pub df: Vec<f64>,
+    #[serde(skip)]
+    pub g: Vec<f64>,
+    #[serde(skip)]
+    pub dg: Vec<Vec<f64>>,
+}
+
+impl Evaluation {
+    /// An evaluation of an analytic problem in scaled variables (minimise f s.t. g ≤ 0): the
+    /// objective is −f; for tests and for users plugging in their own functions.
+    pub fn from_parts(x: &[f64], f: f64, df: Vec<f64>, g: Vec<f64>, dg: Vec<Vec<f64>>) -> Evaluation {
+        let feasible = g.iter().all(|v| *v <= FEAS_TOL);
+        Evaluation {
+            x: x.to_vec(),
+            design: x.iter().enumerate().map(|(i, v)| (format!("x{i}"), *v)).collect(),
+            objective: -f,
+            gradient: df.iter().enumerate().map(|(i, v)| (format!("x{i}"), -v)).collect(),
+            constraints: g.iter().enumerate().map(|(i, v)| (format!("g{i}"), *v)).collect(),
+            feasible,
+            theta_deg: None,
+            tau_nm: None,
+            max_radius_mm: f64::NAN,
+            p_limit_kpa: None,
+            scenes: BTreeMap::new(),
+            status: "ok".into(),
+            newton_iterations: 0,
+            adjoint_solves: 0,
+            time_s: 0.0,
+            warm_started: false,
+            f,
+            df,
+            g,
+            dg,
+        }
+    }
+}
+
+/// Result of one optimiser run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunResult {
+    pub optimiser: String,
+    pub start: usize,
+    pub x0: Vec<f64>,
+    pub status: String,
+    pub evaluations: Vec<Evaluation>,
+    /// index into `evaluations` of the best feasible point (None: none feasible)
+    pub best: Option<usize>,
+    /// KKT measure at the best point: ‖projected gradient of the Lagrangian‖∞ / ‖∇f‖∞ (scaled)
+    pub kkt: Option<f64>,
+    pub multipliers: Option<Vec<f64>>,
+    pub wall_time_s: f64,
+}
+
+/// Constraint feasibility tolerance (scaled units, ≈ 0.009 mm of radius).
+pub const FEAS_TOL: f64 = 1e-3;
+
+/// The pressure is kept this fraction below the scenes' lowest pressure maximum (snap-through):
+/// an actuator cannot be operated at its limit point, and solves there are ill-conditioned.
+pub const STABILITY_MARGIN: f64 = 0.02;
+
+impl OptProblem {
+    pub fn n(&self) -> usize {
+        self.variables.len()
+    }
+
+    fn unscale(&self, x: &[f64]) -> BTreeMap<String, f64> {
+        let mut d = self.fixed.clone();
+        for (v, xi) in self.variables.iter().zip(x) {
+            d.insert(v.name.clone(), v.lower + xi.clamp(0.0, 1.0) * (v.upper - v.lower));
+        }
+        d
+    }
+
+    fn constraint_names(&self) -> Vec<String> {
+        let mut c: Vec<String> = self.scenes.iter().map(|k| format!("radius:{}", k.name())).collect();
+        c.push("stability".into());
+        c
+    }
+
+    pub fn n_constraints(&self) -> usize {
+        self.scenes.len() + 1
+    }
+
+    /// One FE evaluation (never panics; failures are infeasible evaluations with a status).
+    pub fn evaluate(&self, x: &[f64], warm: &mut Option<WarmStarts>, last_good: Option<&Evaluation>) -> Evaluation {
+        let t0 = Instant::now();
+        let design = self.unscale(x);
+        let n = self.n();
+        let m = self.n_constraints();
+        let (oref, _) = self.objective.reference();
+        let mut ev = Evaluation {
+            x: x.to_vec(),
+            design: design.clone(),
+            objective: f64::NAN,
+            gradient: BTreeMap::new(),
+            constraints: BTreeMap::new(),
+            feasible: false,
+            theta_deg: None,
+            tau_nm: None,
+            max_radius_mm: f64::NAN,
+            p_limit_kpa: None,
+            scenes: BTreeMap::new(),
+            status: "ok".into(),
+            newton_iterations: 0,
+            adjoint_solves: 0,
+            time_s: 0.0,
+            warm_started: false,
+            f: 0.0,
+            df: vec![0.0; n],
+            g: vec![1.0; m],
+            dg: vec![vec![0.0; n]; m],
+        };
+        let fail = |mut ev: Evaluation, why: String| {
+            ev.status = why;
+            if let Some(lg) = last_good {
+                ev.f = lg.f;
+                ev.df = lg.df.clone();
+                ev.objective = lg.objective;
+            } else {
+                ev.objective = 0.0;
+            }
+            ev.time_s = t0.elapsed().as_secs_f64();
+            ev
+        };
+        let d = crate::geometry::Design { values: design.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect() };
+        let geom = match ActuatorGeometry::new(&d, self.policy) {
+            Ok(g) => g,
+            Err(e) => return fail(ev, format!("invalid-geometry: {e}")),
+        };
+        let p = design[P_PRESSURE];
+        let pi = self.variables.iter().position(|v| v.name == P_PRESSURE);
+        let (cap, prange) = match pi {
+            Some(i) => (self.variables[i].upper, self.variables[i].upper - self.variables[i].lower),
+            None => (p, p.abs().max(1.0)),
+        };
+        let dg: DesignGradient = match design_gradient(&geom, &self.opts, &self.scenes, p, self.ks_rho, warm.as_ref(), Some(cap)) {
+            Ok(g) => g,
+            Err(e) => return fail(ev, format!("model-error: {e}")),
+        };
+        ev.newton_iterations = dg.newton_iterations;
+        ev.adjoint_solves = dg.adjoint_solves;
+        ev.warm_started = dg.scenes.values().all(|s| s.cost.warm_started);
+        let mut p_reached = p;
+        let mut all_ok = true;
+        for (name, s) in &dg.scenes {
+            ev.scenes.insert(name.clone(), (s.status.clone(), s.p_kpa));
+            if s.status != "converged" {
+                all_ok = false;
+                p_reached = p_reached.min(s.p_kpa);
+            }
+            if s.status == "gradient-failed" {
+                return fail(ev, format!("{name}: {}", s.cause));
+            }
+        }
+        ev.max_radius_mm = dg.scenes.values().map(|s| s.max_radius_mm).fold(0.0, f64::max);
+        // the objective and its gradient by parameter name
+        let (obj, grad): (f64, BTreeMap<String, f64>) = match self.objective {
+            Objective::EnergyDensity => {
+                let key = if self.scenes.contains(&SceneKind::Free) { "combined" } else { "pure-twist" };
+                match dg.omega.get(key) {
+                    Some(o) => (o.value, o.gradient.clone()),
+                    None => return fail(ev, "model-error: no pair of scenes for the energy density".into()),
+                }
+            }
+            Objective::Twist | Objective::Torque => {
+                let f = if self.objective == Objective::Twist { "theta_deg" } else { "tau_Nm" };
+                match dg.scenes.values().find(|s| s.values.contains_key(f)) {
+                    Some(s) => {
+                        let v = s.values[f];
+                        let sg = if v < 0.0 { -1.0 } else { 1.0 };
+                        (v.abs(), s.gradients[f].iter().map(|(k, g)| (k.clone(), sg * g)).collect())
+                    }
+                    None => return fail(ev, format!("model-error: no scene gives {f}")),
+                }
+            }
+        };
+        for s in dg.scenes.values() {
+            if let Some(t) = s.values.get("theta_deg") {
+                ev.theta_deg = Some(*t);
+            }
+            if let Some(t) = s.values.get("tau_Nm") {
+                ev.tau_nm = Some(*t);
+            }
+        }
+        ev.objective = obj;
+        ev.f = -obj / oref;
+        for (i, v) in self.variables.iter().enumerate() {
+            let gv = grad.get(&v.name).copied().unwrap_or(0.0);
+            ev.gradient.insert(v.name.clone(), gv);
+            ev.df[i] = -gv * (v.upper - v.lower) / oref;
+        }
+        // radius constraints
+        let cscale = self.ballooning_limit_mm - R_TUBE;
+        for (j, k) in self.scenes.iter().enumerate() {
+            let s = &dg.scenes[k.name()];
+            ev.g[j] = (s.values.get("max_radius_ks_mm").copied().unwrap_or(f64::INFINITY) - self.ballooning_limit_mm) / cscale;
+            for (i, v) in self.variables.iter().enumerate() {
+                ev.dg[j][i] = s.gradients.get("max_radius_ks_mm").and_then(|g| g.get(&v.name)).copied().unwrap_or(0.0) * (v.upper - v.lower) / cscale;
+            }
+        }
+        // stability: p ≤ (1 − margin) · p_lim, p_lim = the lowest pressure maximum of the scenes
+        let ms = m - 1;
+        let lim = dg.scenes.values().filter_map(|s| s.p_limit_kpa.map(|pl| (pl, &s.p_limit_gradient))).min_by(|a, b| a.0.total_cmp(&b.0));
+        match lim {
+            Some((pl, grad)) => {
+                let keep = 1.0 - STABILITY_MARGIN;
+                ev.g[ms] = (p - keep * pl) / prange;
+                for (i, v) in self.variables.iter().enumerate() {
+                    ev.dg[ms][i] = if v.name == P_PRESSURE { 1.0 } else { -keep * grad.get(&v.name).copied().unwrap_or(0.0) * (v.upper - v.lower) / prange };
+                }
+                ev.p_limit_kpa = Some(pl);
+            }
+            None => {
+                ev.g[ms] = (p - cap) / prange;
+                if let Some(i) = pi {
+                    ev.dg[ms][i] = 1.0;
+                }
+            }
+        }
+        if !all_ok {
+            ev.status = format!("failed-before-p: {}", dg.scenes.values().filter(|s| s.status != "converged").map(|s| format!("{} {} at {:.3} kPa", s.scene, s.status, s.p_kpa)).collect::<Vec<_>>().join(", "));
+        }
+        for (name, gv) in self.constraint_names().into_iter().zip(&ev.g) {
+            ev.constraints.insert(name, *gv);
+        }
+        let finite = ev.f.is_finite() && ev.df.iter().chain(ev.g.iter()).chain(ev.dg.iter().flatten()).all(|v| v.is_finite());
+        if !finite {
+            return fail(ev, "non-finite value or gradient".into());
+        }
+        ev.feasible = all_ok && ev.g.iter().all(|g| *g <= FEAS_TOL);
+        if all_ok {
+            *warm = Some(dg.warm_starts());
+        }
+        ev.time_s = t0.elapsed().as_secs_f64();
+        ev
+    }
+}
+
+/// Stopping rules of a run.
+#[derive(Clone, Copy, Debug)]
+pub struct StopRules {
+    pub max_evaluations: usize,
+    pub xtol_rel: f64,
+    pub ftol_rel: f64,
+}
+
+/// A run's evaluation log with a cache of the last point (nlopt asks for the objective and the
+/// constraints at the same x separately). The evaluator is any function of the scaled variables
+/// (the FE problem, or an analytic test problem).
+pub struct Session<'a> {
+    evaluator: Box<dyn FnMut(&[f64], Option<&Evaluation>) -> Evaluation + 'a>,
+    pub stop: StopRules,
+    pub n_constraints: usize,
+    pub evaluations: Vec<Evaluation>,
+    /// set when the evaluation budget is exhausted
+    pub exhausted: bool,
+}
+
+impl<'a> Session<'a> {
+    /// A session on the FE problem (warm starts carried from evaluation to evaluation).
+    pub fn new(problem: &'a OptProblem) -> Self {
+        let mut warm: Option<WarmStarts> = None;
+        let stop = StopRules { max_evaluations: problem.max_evaluations, xtol_rel: problem.xtol_rel, ftol_rel: problem.ftol_rel };
+        Session::with_evaluator(stop, problem.n_constraints(), Box::new(move |x, last_good| problem.evaluate(x, &mut warm, last_good)))
+    }
+
+    pub fn with_evaluator(stop: StopRules, n_constraints: usize, evaluator: Box<dyn FnMut(&[f64], Option<&Evaluation>) -> Evaluation + 'a>) -> Self {
+        Session { evaluator, stop, n_constraints, evaluations: Vec::new(), exhausted: false }
+    }
+
+    /// The evaluation at x (cached when x repeats the last point).
+    pub fn eval(&mut self, x: &[f64]) -> Evaluation {
+        if let Some(last) = self.evaluations.last() {
+            if last.x == x {
+                return last.clone();
+            }
+        }
+        if self.evaluations.len() >= self.stop.max_evaluations {
+            self.exhausted = true;
+            // answer with the last point's data; the driver stops
+            if let Some(last) = self.evaluations.last() {
+                return last.clone();
+            }
+        }
+        let last_good = self.evaluations.iter().rev().find(|e| e.status == "ok").cloned();
+        let ev = (self.evaluator)(x, last_good.as_ref());
+        self.evaluations.push(ev.clone());
+        ev
+    }
+
+    /// Index of the best feasible evaluation.
+    pub fn best(&self) -> Option<usize> {
+        self.evaluations
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| e.feasible)
+            .max_by(|a, b| a.1.objective.total_cmp(&b.1.objective))
+            .map(|(i, _)| i)
+    }
+}
+
+/// An optimisation algorithm over scaled variables in [0, 1]ⁿ.
+pub trait Optimiser: Sync {
+    fn name(&self) -> &'static str;
+    /// Run from x0, evaluating through the session; returns a stop status.
+    fn run(&self, session: &mut Session, x0: &[f64]) -> String;
+}
+
+/// The optimisers available in this build, by name.
+pub fn optimiser(name: &str) -> Option<Box<dyn Optimiser>> {
+    match name {
+        #[cfg(feature = "nlopt")]
+        "mma" => Some(Box::new(nlopt_driver::NloptOptimiser { algorithm: nlopt_driver::Which::Mma })),
+        #[cfg(feature = "nlopt")]
+        "slsqp" => Some(Box::new(nlopt_driver::NloptOptimiser { algorithm: nlopt_driver::Which::Slsqp })),
+        "sqp" => Some(Box::new(sqp::TrustRegionSqp)),
+        _ => None,
+    }
+}
+
+/// Names accepted by [`optimiser`] in this build.
+pub fn available_optimisers() -> Vec<&'static str> {
+    let mut v = Vec::new();
+    if cfg!(feature = "nlopt") {
+        v.extend(["mma", "slsqp"]);
+    }
+    v.push("sqp");
+    v
+}
+
+#[cfg(feature = "nlopt")]
+mod nlopt_driver {
+    use super::*;
+    use nlopt::{Algorithm, Nlopt, Target};
+    use std::cell::RefCell;
+
+    #[derive(Clone, Copy)]
+    pub enum Which {
+        Mma,
+        Slsqp,
+    }
+
+    pub struct NloptOptimiser {
+        pub algorithm: Which,
+    }
+
+    impl Optimiser for NloptOptimiser {
+        fn name(&self) -> &'static str {
+            match self.algorithm {
+                Which::Mma => "mma",
+                Which::Slsqp => "slsqp",
+            }
+        }
+
+        fn run(&self, session: &mut Session, x0: &[f64]) -> String {
+            let n = x0.len();
+            let m = session.n_constraints;
+            let (xtol, ftol, maxeval) = (session.stop.xtol_rel, session.stop.ftol_rel, session.stop.max_evaluations);
+            let cell = RefCell::new(session);
+            let obj = |x: &[f64], grad: Option<&mut [f64]>, _: &mut ()| -> f64 {
+                let ev = cell.borrow_mut().eval(x);
+                if let Some(g) = grad {
+                    g.copy_from_slice(&ev.df);
+                }
+                ev.f
+            };
+            let alg = match self.algorithm {
+                Which::Mma => Algorithm::Mma,
+                Which::Slsqp => Algorithm::Slsqp,
+            };
+            let mut opt = Nlopt::new(alg, n, obj, Target::Minimize, ());
+            let cons = |res: &mut [f64], x: &[f64], grad: Option<&mut [f64]>, _: &mut ()| {
+                let ev = cell.borrow_mut().eval(x);
+                res.copy_from_slice(&ev.g);
+                if let Some(g) = grad {
+                    for j in 0..m {
+                        g[j * n..(j + 1) * n].copy_from_slice(&ev.dg[j]);
+                    }
+                }
+            };
+            let setup = opt
+                .set_lower_bounds(&vec![0.0; n])
+                .and_then(|_| opt.set_upper_bounds(&vec![1.0; n]))
+                .and_then(|_| opt.add_inequality_mconstraint(m, cons, (), &vec![FEAS_TOL * 0.1; m]))
+                .and_then(|_| opt.set_xtol_rel(xtol))
+                .and_then(|_| opt.set_ftol_rel(ftol))
+                .and_then(|_| opt.set_maxeval(maxeval as u32));
+            if let Err(e) = setup {
+                return format!("nlopt setup failed: {e:?}");
+            }
+            let mut x = x0.to_vec();
+            let status = match opt.optimize(&mut x) {
+                Ok((s, _)) => format!("{s:?}"),
+                Err((e, _)) => format!("{e:?}"),
+            };
+            drop(opt);
+            if cell.borrow().exhausted {
+                "MaxEvalReached".into()
+            } else {
+                status
+            }
+        }
+    }
+}
+
+mod sqp {
+    //! Trust-region SQP with elastic constraints: at x solve
+    //!   min ½dᵀBd + ∇fᵀd + ν Σ s   s.t.  g + J d ≤ s, s ≥ 0, 0 ≤ x + d ≤ 1, ‖d‖∞ ≤ Δ
+    //! with clarabel; accept by the ℓ1 merit φ = f + ν Σ max(0, g); damped BFGS update of B on the
+    //! Lagrangian gradient (multipliers from the QP).
+    use super::*;
+    use clarabel::algebra::CscMatrix;
+    use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus};
+
+    pub struct TrustRegionSqp;
+
+    fn merit(ev: &Evaluation, nu: f64) -> f64 {
+        ev.f + nu * ev.g.iter().map(|g| g.max(0.0)).sum::<f64>()
+    }
+
+    /// Dense (rows) → CSC.
+    fn csc(rows: usize, cols: usize, a: &[Vec<f64>], upper_only: bool) -> CscMatrix<f64> {
+        let mut colptr = vec![0usize];
+        let mut rowval = Vec::new();
+        let mut nzval = Vec::new();
+        for c in 0..cols {
+            for (r, row) in a.iter().enumerate().take(rows) {
+                if upper_only && r > c {
+                    continue;
+                }
+                if row[c] != 0.0 {
+                    rowval.push(r);
+                    nzval.push(row[c]);
+                }
+            }
+            colptr.push(rowval.len());
+        }
+        CscMatrix::new(rows, cols, colptr, rowval, nzval)
+    }
+
+    /// Solve the elastic QP; returns (d, multipliers of g + J d ≤ s).
+    fn qp(b: &[Vec<f64>], ev: &Evaluation, x: &[f64], delta: f64, nu: f64) -> Option<(Vec<f64>, Vec<f64>)> {
+        let n = x.len();
+        let m = ev.g.len();
+        let nv = n + m;
+        let mut p = vec![vec![0.0; nv]; nv];
+        for i in 0..n {
+            for j in 0..n {
+                p[i][j] = b[i][j];
+            }
+        }
+        let mut q = ev.df.clone();
+        q.extend(std::iter::repeat_n(nu, m));
+        // rows: J d − s ≤ −g (m); −s ≤ 0 (m); d ≤ min(1 − x, Δ) (n); −d ≤ min(x, Δ) (n)
+        let mut a = Vec::new();
+        let mut rhs = Vec::new();
+        for j in 0..m {
+            let mut r = vec![0.0; nv];
+            r[..n].copy_from_slice(&ev.dg[j]);
+            r[n + j] = -1.0;
+            a.push(r);
+            rhs.push(-ev.g[j]);
+        }
+        for j in 0..m {
+            let mut r = vec![0.0; nv];
+            r[n + j] = -1.0;
+            a.push(r);
+            rhs.push(0.0);
+        }
+        for i in 0..n {
+            let mut r = vec![0.0; nv];
+            r[i] = 1.0;
+            a.push(r);
+            rhs.push((1.0 - x[i]).min(delta).max(0.0));
+            let mut r = vec![0.0; nv];
+            r[i] = -1.0;
+            a.push(r);
+            rhs.push(x[i].min(delta).max(0.0));
+        }
+        let pm = csc(nv, nv, &p, true);
+        let am = csc(a.len(), nv, &a, false);
+        let cones = [NonnegativeConeT(a.len())];
+        let settings = DefaultSettingsBuilder::default().verbose(false).max_iter(200).build().ok()?;
+        let mut solver = DefaultSolver::new(&pm, &q, &am, &rhs, &cones, settings).ok()?;
+        solver.solve();
+        match solver.solution.status {
+            SolverStatus::Solved | SolverStatus::AlmostSolved => {}
+            _ => return None,
+        }
+        let d = solver.solution.x[..n].to_vec();
+        let lam = solver.solution.z[..m].to_vec();
+        if d.iter().chain(&lam).any(|v| !v.is_finite()) {
+            return None;
+        }
+        Some((d, lam))
+    }
+
+    impl Optimiser for TrustRegionSqp {
+        fn name(&self) -> &'static str {
+            "sqp"
+        }
+
+        fn run(&self, s: &mut Session, x0: &[f64]) -> String {
+            let n = x0.len();
+            let (xtol, ftol) = (s.stop.xtol_rel, s.stop.ftol_rel);
+            let mut x = x0.to_vec();
+            let mut ev = s.eval(&x);
+            let mut b: Vec<Vec<f64>> = (0..n).map(|i| (0..n).map(|j| if i == j { 1.0 } else { 0.0 }).collect()).collect();
+            let mut delta: f64 = 0.2;
+            let mut nu: f64 = 10.0;
+            loop {
+                if s.exhausted || s.evaluations.len() >= s.stop.max_evaluations {
+                    return "MaxEvalReached".into();
+                }
+                let Some((d, lam)) = qp(&b, &ev, &x, delta, nu) else {
+                    return "qp-failed".into();
+                };
+                let dn = d.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                if dn < xtol {
+                    return "XtolReached".into();
+                }
+                nu = nu.max(1.5 * lam.iter().fold(0.0f64, |a, v| a.max(*v)));
+                let xn: Vec<f64> = x.iter().zip(&d).map(|(a, b)| (a + b).clamp(0.0, 1.0)).collect();
+                let evn = s.eval(&xn);
+                // predicted reduction of the merit model
+                let lin: Vec<f64> = ev.g.iter().zip(&ev.dg).map(|(g, j)| g + j.iter().zip(&d).map(|(a, b)| a * b).sum::<f64>()).collect();
+                let quad: f64 = 0.5 * (0..n).map(|i| (0..n).map(|j| d[i] * b[i][j] * d[j]).sum::<f64>()).sum::<f64>();
+                let pred = -(ev.df.iter().zip(&d).map(|(a, b)| a * b).sum::<f64>() + quad)
+                    + nu * (ev.g.iter().map(|g| g.max(0.0)).sum::<f64>() - lin.iter().map(|g| g.max(0.0)).sum::<f64>());
+                let ared = merit(&ev, nu) - merit(&evn, nu);
+                let rho = if pred > 0.0 { ared / pred } else { -1.0 };
+                let failed_eval = evn.status.starts_with("invalid") || evn.status.starts_with("model-error") || evn.status.starts_with("non-finite");
+                if rho < 0.25 || failed_eval {
+                    delta = 0.25 * dn.max(1e-6);
+                } else if rho > 0.75 && dn > 0.99 * delta {
+                    delta = (2.0 * delta).min(1.0);
+                }
+                if rho > 0.05 && !failed_eval {
+                    // damped BFGS on the Lagrangian gradient
+                    let lag = |e: &Evaluation| -> Vec<f64> { (0..n).map(|i| e.df[i] + lam.iter().zip(&e.dg).map(|(l, row)| l * row[i]).sum::<f64>()).collect() };
+                    let y: Vec<f64> = lag(&evn).iter().zip(lag(&ev)).map(|(a, b)| a - b).collect();
+                    let sv: Vec<f64> = xn.iter().zip(&x).map(|(a, b)| a - b).collect();
+                    let bs: Vec<f64> = (0..n).map(|i| (0..n).map(|j| b[i][j] * sv[j]).sum()).collect();
+                    let sbs: f64 = sv.iter().zip(&bs).map(|(a, b)| a * b).sum();
+                    let sy: f64 = sv.iter().zip(&y).map(|(a, b)| a * b).sum();
+                    if sbs > 1e-16 {
+                        let theta = if sy >= 0.2 * sbs { 1.0 } else { 0.8 * sbs / (sbs - sy) };
+                        let r: Vec<f64> = (0..n).map(|i| theta * y[i] + (1.0 - theta) * bs[i]).collect();
+                        let sr: f64 = sv.iter().zip(&r).map(|(a, b)| a * b).sum();
+                        if sr > 1e-16 {
+                            for i in 0..n {
+                                for j in 0..n {
+                                    b[i][j] += r[i] * r[j] / sr - bs[i] * bs[j] / sbs;
+                                }
+                            }
+                        }
+                    }
+                    let df = (evn.f - ev.f).abs();
+                    let converged_f = df <= ftol * ev.f.abs().max(1e-12) && evn.g.iter().all(|g| *g <= FEAS_TOL);
+                    x = xn;
+                    ev = evn;
+                    if converged_f {
+                        return "FtolReached".into();
+                    }
+                } else if delta < xtol {
+                    return "XtolReached (trust region)".into();
+                }
+            }
+        }
+    }
+}
+
+/// KKT measure at an evaluation: with A the constraints within `FEAS_TOL` of active, the smallest
+/// ‖P(∇f + Σ_A λ_i ∇g_i)‖∞ over λ ≥ 0 (P zeroes the components that push out of the box at active
+/// bounds), relative to ‖∇f‖∞; by enumeration of the active subsets. Returns (measure, λ).
+pub fn kkt_measure(ev: &Evaluation) -> (f64, Vec<f64>) {
+    let n = ev.df.len();
+    let active: Vec<usize> = (0..ev.g.len()).filter(|&j| ev.g[j] >= -FEAS_TOL && ev.dg[j].iter().any(|v| *v != 0.0)).collect();
+    let proj = |v: &[f64]| -> f64 {
+        (0..n)
+            .map(|i| {
+                let c = v[i];
+                if ev.x[i] <= 1e-6 {
+                    c.min(0.0).abs() // at the lower bound a positive component is fine (minimisation)
+                } else if ev.x[i] >= 1.0 - 1e-6 {
+                    c.max(0.0)
+                } else {
+                    c.abs()
+                }
+            })
+            .fold(0.0, f64::max)
+    };
+    let scale = ev.df.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-12);
+    let mut best = (proj(&ev.df), vec![0.0; ev.g.len()]);
+    // least squares over each subset of the active constraints, on the interior components
+    let interior: Vec<usize> = (0..n).filter(|&i| ev.x[i] > 1e-6 && ev.x[i] < 1.0 - 1e-6).collect();
+    for mask in 1u32..(1u32 << active.len().min(8)) {
+        let set: Vec<usize> = active.iter().enumerate().filter(|(k, _)| mask & (1 << k) != 0).map(|(_, &j)| j).collect();
+        let rows = interior.len().max(1);
+        let a = nalgebra::DMatrix::from_fn(rows, set.len(), |r, c| interior.get(r).map(|&i| ev.dg[set[c]][i]).unwrap_or(0.0));
+        let b = nalgebra::DVector::from_fn(rows, |r, _| interior.get(r).map(|&i| -ev.df[i]).unwrap_or(0.0));
+        let Ok(sol) = a.clone().svd(true, true).solve(&b, 1e-12) else { continue };
+        if sol.iter().any(|l| *l < 0.0) {
+            continue;
+        }
+        let mut lam = vec![0.0; ev.g.len()];
+        for (c, &j) in set.iter().enumerate() {
+            lam[j] = sol[c];
+        }
+        let lg: Vec<f64> = (0..n).map(|i| ev.df[i] + lam.iter().zip(&ev.dg).map(|(l, r)| l * r[i]).sum::<f64>()).collect();
+        let r = proj(&lg);
+        if r < best.0 {
+            best = (r, lam);
+        }
+    }
+    (best.0 / scale, best.1)
+}
+
+/// Space-filling starting points in [0.1, 0.9]ⁿ: the Halton sequence (bases 2, 3, 5, 7, 11, …)
+/// from its second point.
+pub fn starting_points(n: usize, count: usize) -> Vec<Vec<f64>> {
+    const PRIMES: [u32; 12] = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37];
+    let halton = |mut i: u32, b: u32| {
+        let (mut f, mut r) = (1.0, 0.0);
+        while i > 0 {
+            f /= b as f64;
+            r += f * (i % b) as f64;
+            i /= b;
+        }
+        r
+    };
+    (0..count).map(|k| (0..n).map(|d| 0.1 + 0.8 * halton(k as u32 + 1, PRIMES[d % PRIMES.len()])).collect()).collect()
+}
+
+/// Run every (optimiser, start) pair in parallel. `progress` is called after each run.
+pub fn run_all(problem: &OptProblem, optimisers: &[String], starts: &[Vec<f64>], progress: impl Fn(&RunResult) + Sync) -> Vec<RunResult> {
+    use rayon::prelude::*;
+    let jobs: Vec<(String, usize)> = optimisers.iter().flat_map(|o| (0..starts.len()).map(move |s| (o.clone(), s))).collect();
+    let done = Mutex::new(());
+    jobs.par_iter()
+        .map(|(name, si)| {
+            let t0 = Instant::now();
+            let mut session = Session::new(problem);
+            let status = match optimiser(name) {
+                Some(o) => o.run(&mut session, &starts[*si]),
+                None => format!("unknown optimiser '{name}'"),
+            };
+            let best = session.best();
+            let (kkt, multipliers) = match best {
+                Some(b) => {
+                    let (k, l) = kkt_measure(&session.evaluations[b]);
+                    (Some(k), Some(l))
+                }
+                None => (None, None),
+            };
+            let r = RunResult { optimiser: name.clone(), start: *si, x0: starts[*si].clone(), status, evaluations: session.evaluations, best, kkt, multipliers, wall_time_s: t0.elapsed().as_secs_f64() };
+            let _g = done.lock();
+            progress(&r);
+            r
+        })
+        .collect()
+}
+
+/// Build the optimisation problem of a validated problem file.
+pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Validated) -> anyhow::Result<(OptProblem, crate::problem::OptimiseSection)> {
+    use anyhow::{anyhow, bail};
+    let sec = problem.optimise.clone().ok_or_else(|| anyhow!("the problem has no [optimise] section (see problems/README.md)"))?;
+    let objective = Objective::parse(&sec.objective).ok_or_else(|| anyhow!("optimise.objective = '{}' (expected energy-density, twist or torque)", sec.objective))?;
+    let p_max = match v.load {
+        crate::problem::LoadPlan::Ramp(p) => p,
+        _ => bail!("optimise needs load.p_max_kPa (the upper bound of the pressure), not load.pressures_kPa"),
+    };
+    if !(sec.p_min_kpa.is_finite() && sec.p_min_kpa > 0.0 && sec.p_min_kpa < p_max) {
+        bail!("optimise.p_min_kPa = {} must be > 0 and below load.p_max_kPa = {p_max}", sec.p_min_kpa);
+    }
+    let has = |k: SceneKind| v.scenes.contains(&k);
+    match objective {
+        Objective::EnergyDensity => {
+            if !((has(SceneKind::Free) && has(SceneKind::Blocked)) || (has(SceneKind::PureTwist) && has(SceneKind::PureTwistBlocked))) {
+                bail!("optimise.objective = energy-density needs scenes.run = [free, blocked] or [pure-twist, pure-twist-blocked]");
+            }
+        }
+        Objective::Twist => {
+            if !(has(SceneKind::Free) || has(SceneKind::PureTwist)) {
+                bail!("optimise.objective = twist needs a rotation-free scene (free or pure-twist) in scenes.run");
+            }
+        }
+        Objective::Torque => {
+            if !(has(SceneKind::Blocked) || has(SceneKind::PureTwistBlocked)) {
+                bail!("optimise.objective = torque needs a rotation-held scene (blocked or pure-twist-blocked) in scenes.run");
+            }
+        }
+    }
+    let space = DesignSpace::actuator();
+    let policy = v.geometry.policy;
+    let mut variables = Vec::new();
+    if sec.variables.is_empty() {
+        bail!("optimise.variables is empty (choose from {}, p_kPa)", space.names().join(", "));
+    }
+    for name in &sec.variables {
+        if variables.iter().any(|x: &Variable| &x.name == name) {
+            bail!("optimise.variables: '{name}' is listed twice");
+        }
+        if name == P_PRESSURE {
+            variables.push(Variable { name: name.clone(), lower: sec.p_min_kpa, upper: p_max });
+        } else {
+            let ps = space.get(name).ok_or_else(|| anyhow!("optimise.variables: unknown variable '{name}' (expected {}, p_kPa)", space.names().join(", ")))?;
+            if policy != RangePolicy::TableI {
+                bail!("optimise works in the Table-I box: set design.range = \"table1\"");
+            }
+            variables.push(Variable { name: name.clone(), lower: ps.min, upper: ps.max });
+        }
+    }
+    if sec.optimisers.is_empty() {
+        bail!("optimise.optimisers is empty (available: {})", available_optimisers().join(", "));
+    }
+    for o in &sec.optimisers {
+        if optimiser(o).is_none() {
+            bail!("optimise.optimisers: '{o}' is not available in this build (available: {})", available_optimisers().join(", "));
+        }
+    }
+    if !(1..=64).contains(&sec.starts) {
+        bail!("optimise.starts = {} must be between 1 and 64", sec.starts);
+    }
+    if !(2..=10_000).contains(&sec.max_evaluations) {
+        bail!("optimise.max_evaluations = {} must be between 2 and 10000", sec.max_evaluations);
+    }
+    for (k, t) in [("xtol_rel", sec.xtol_rel), ("ftol_rel", sec.ftol_rel)] {
+        if !(t.is_finite() && t > 0.0 && t < 1.0) {
+            bail!("optimise.{k} = {t} must be in (0, 1)");
+        }
+    }
+    if !(sec.ks_rho_per_mm.is_finite() && sec.ks_rho_per_mm > 0.0) {
+        bail!("optimise.ks_rho_per_mm = {} must be finite and > 0", sec.ks_rho_per_mm);
+    }
+    let mut fixed = v.geometry.design.values.clone();
+    fixed.insert(P_PRESSURE.into(), p_max);
+    let opts = problem.scene_options(v);
+    Ok((
+        OptProblem {
+            objective,
+            scenes: v.scenes.clone(),
+            variables,
+            fixed,
+            policy: RangePolicy::TableI,
+            opts,
+            ks_rho: sec.ks_rho_per_mm,
+            ballooning_limit_mm: problem.scenes.ballooning_limit_mm,
+            max_evaluations: sec.max_evaluations,
+            xtol_rel: sec.xtol_rel,
+            ftol_rel: sec.ftol_rel,
+        },
+        sec,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// maximise x0 + x1 on the disc x0² + x1² ≤ 0.5 in the unit box: optimum (0.5, 0.5), value 1,
+    /// multiplier 1 (∇f = −(1, 1) = −λ ∇g, ∇g = (1, 1) there).
+    fn disc(x: &[f64], _: Option<&Evaluation>) -> Evaluation {
+        Evaluation::from_parts(x, -(x[0] + x[1]), vec![-1.0, -1.0], vec![x[0] * x[0] + x[1] * x[1] - 0.5], vec![vec![2.0 * x[0], 2.0 * x[1]]])
+    }
+
+    #[test]
+    fn every_optimiser_solves_a_constrained_analytic_problem() {
+        for name in available_optimisers() {
+            let stop = StopRules { max_evaluations: 80, xtol_rel: 1e-6, ftol_rel: 1e-9 };
+            let mut s = Session::with_evaluator(stop, 1, Box::new(disc));
+            let status = optimiser(name).unwrap().run(&mut s, &[0.2, 0.7]);
+            let b = s.best().unwrap_or_else(|| panic!("{name}: nothing feasible ({status})"));
+            let e = &s.evaluations[b];
+            assert!((e.objective - 1.0).abs() < 2e-3, "{name}: {} at {:?} ({status})", e.objective, e.x);
+            assert!((e.x[0] - 0.5).abs() < 5e-3 && (e.x[1] - 0.5).abs() < 5e-3, "{name}: {:?}", e.x);
+            let (kkt, lam) = kkt_measure(e);
+            assert!(kkt < 1e-2, "{name}: KKT {kkt}");
+            assert!((lam[0] - 1.0).abs() < 2e-2, "{name}: multiplier {lam:?}");
+            assert!(s.evaluations.len() <= 80, "{name}: {} evaluations", s.evaluations.len());
+        }
+    }
+
+    #[test]
+    fn kkt_measure_sees_bounds_and_interior_stationarity() {
+        // at the upper bound with a gradient pushing out of the box: stationary
+        let e = Evaluation::from_parts(&[1.0, 0.5], -1.0, vec![-2.0, 0.0], vec![-1.0], vec![vec![0.0, 1.0]]);
+        assert!(kkt_measure(&e).0 < 1e-12);
+        // interior with a non-zero gradient: not stationary
+        let e = Evaluation::from_parts(&[0.3, 0.5], -1.0, vec![-2.0, 0.0], vec![-1.0], vec![vec![0.0, 1.0]]);
+        assert!((kkt_measure(&e).0 - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn starting_points_are_inside_and_distinct() {
+        let p = starting_points(4, 5);
+        for (i, a) in p.iter().enumerate() {
+            assert!(a.iter().all(|v| (0.1..=0.9).contains(v)));
+            for b in &p[..i] {
+                assert!(a.iter().zip(b).any(|(x, y)| (x - y).abs() > 0.05));
+            }
+        }
+    }
+}

@@ -18,12 +18,12 @@
 //! Under pressure control an inflated tube has a pressure maximum (limit point) beyond which it
 //! snaps through and balloons; on this geometry that, not the radius limit, usually ends a ramp
 //! (the letter's "analysis fails ... when the ballooning effect occurs"). Each evaluation
-//! therefore continues every scene's ramp from p up to the pressure bound p_max to find its
+//! therefore continues every scene's ramp from p upward (to p_max/(1 − m)) to find its
 //! failure pressure p_lim (at the last converged state) and its design sensitivity by the
 //! null-vector formula dp_lim/ds = −φᵀ∂r/∂s / φᵀ∂r/∂p ([`twistopt_solver::adjoint::limit_sensitivity`]).
 //! The constraint `stability` = (p − (1 − m)·min p_lim)/(p_max − p_min) ≤ 0, m =
-//! [`STABILITY_MARGIN`], is then smooth with a gradient in every variable; without a failure below
-//! p_max it is (p − p_max)/(p_max − p_min).
+//! [`STABILITY_MARGIN`], is then smooth with a gradient in every variable. The search stops at
+//! p_max/(1 − m); without a failure up to there the constraint is inactive (−0.01).
 //!
 //! A design whose ramp fails before p has no stable equilibrium at p: the evaluation reports the
 //! values and gradients at the last converged pressure (status `failed-before-p`) and is
@@ -273,10 +273,12 @@ impl OptProblem {
         };
         let p = design[P_PRESSURE];
         let pi = self.variables.iter().position(|v| v.name == P_PRESSURE);
-        let (cap, prange) = match pi {
+        // the limit search goes to the pressure whose margin the highest allowed p needs
+        let (pmax, prange) = match pi {
             Some(i) => (self.variables[i].upper, self.variables[i].upper - self.variables[i].lower),
             None => (p, p.abs().max(1.0)),
         };
+        let cap = pmax / (1.0 - STABILITY_MARGIN);
         let dg: DesignGradient = match design_gradient(&geom, &self.opts, &self.scenes, p, self.ks_rho, warm.as_ref(), Some(cap)) {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("model-error: {e}")),
@@ -355,9 +357,10 @@ impl OptProblem {
                 ev.p_limit_kpa = Some(pl);
             }
             None => {
-                ev.g[ms] = (p - cap) / prange;
+                // no failure up to the cap: p_lim > cap, the constraint is inactive
+                ev.g[ms] = ((p - (1.0 - STABILITY_MARGIN) * cap) / prange).min(-0.01);
                 if let Some(i) = pi {
-                    ev.dg[ms][i] = 1.0;
+                    ev.dg[ms][i] = 0.0;
                 }
             }
         }

@@ -1,0 +1,82 @@
+//! The optimiser end to end on a small problem: the blocking torque over α at a fixed pressure
+//! (the letter: τ first grows with α, peaks, then falls — an interior optimum), on a very coarse
+//! mesh so that the test stays fast. MMA, SLSQP and the pure-Rust SQP must agree.
+
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_twistopt"))
+}
+
+#[test]
+fn optimisers_agree_on_the_torque_optimum_in_alpha() {
+    let dir = std::env::temp_dir().join(format!("twistopt-optimise-{}", std::process::id()));
+    let out = bin()
+        .args([
+            "optimise",
+            "problems/max-torque.toml",
+            "--set",
+            "fidelity.mesh=12x4x1",
+            "--set",
+            "load.p_max_kPa=20",
+            "--set",
+            "optimise.variables=[\"alpha_deg\"]",
+            "--set",
+            "optimise.optimisers=[\"mma\",\"slsqp\",\"sqp\"]",
+            "--set",
+            "optimise.starts=1",
+            "--set",
+            "optimise.max_evaluations=30",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let best: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("best.json")).unwrap()).unwrap();
+    for k in ["r_mm", "l_mm", "alpha_deg", "p_kPa", "theta_deg", "tau_Nm", "omega_J_m3", "max_radius_mm", "evaluations", "status"] {
+        assert!(best.get(k).is_some(), "best.json lacks {k}");
+    }
+    let runs = best["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 3);
+    let objs: Vec<f64> = runs.iter().map(|r| r["objective"].as_f64().expect("each run found a feasible design")).collect();
+    let top = objs.iter().copied().fold(f64::MIN, f64::max);
+    for (r, o) in runs.iter().zip(&objs) {
+        assert!((top - o) / top < 5e-3, "{}: {o} vs best {top}", r["optimiser"]);
+        assert!(r["evaluations"].as_u64().unwrap() <= 30);
+    }
+    // an interior optimum in α (the Table-I box is 60–360°) where dτ/dα vanishes
+    let a = best["alpha_deg"].as_f64().unwrap();
+    assert!(a > 61.0 && a < 359.0, "alpha {a}");
+    assert!(best["kkt"].as_f64().unwrap() < 1e-2, "kkt {}", best["kkt"]);
+    assert!(best["tau_Nm"].as_f64().unwrap().abs() > 0.0);
+    // every evaluation is in the history with its gradient and constraints
+    let hist: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("history.json")).unwrap()).unwrap();
+    let n: usize = hist["runs"].as_array().unwrap().iter().map(|r| r["evaluations"].as_array().unwrap().len()).sum();
+    assert_eq!(n as u64, best["evaluations"].as_u64().unwrap());
+    for f in ["objective.png", "objective.svg", "constraint.png", "constraint.svg"] {
+        assert!(dir.join(f).exists(), "{f}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn optimise_rejects_bad_sections() {
+    let dir = std::env::temp_dir().join(format!("twistopt-optimise-bad-{}", std::process::id()));
+    for (set, msg) in [
+        ("optimise.objective=\"speed\"", "optimise.objective"),
+        ("optimise.variables=[\"q_mm\"]", "unknown variable"),
+        ("optimise.optimisers=[\"newton\"]", "not available"),
+        ("optimise.starts=0", "optimise.starts"),
+        ("optimise.banana=1", "banana"),
+    ] {
+        let out = bin().args(["optimise", "problems/energy-density.toml", "--set", set, "--out"]).arg(&dir).output().unwrap();
+        assert!(!out.status.success(), "{set} accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(msg) && !err.contains("panicked"), "{set}: {err}");
+    }
+    // a problem without [optimise]
+    let out = bin().args(["optimise", "problems/paper-example.toml", "--out"]).arg(&dir).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("[optimise]"));
+}

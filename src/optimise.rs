@@ -405,11 +405,20 @@ pub struct Session<'a> {
 }
 
 impl<'a> Session<'a> {
-    /// A session on the FE problem (warm starts carried from evaluation to evaluation).
-    pub fn new(problem: &'a OptProblem) -> Self {
+    /// A session on the FE problem (warm starts carried from evaluation to evaluation); `log`
+    /// sees every evaluation (e.g. to print progress).
+    pub fn new(problem: &'a OptProblem, log: impl Fn(&Evaluation) + 'a) -> Self {
         let mut warm: Option<WarmStarts> = None;
         let stop = StopRules { max_evaluations: problem.max_evaluations, xtol_rel: problem.xtol_rel, ftol_rel: problem.ftol_rel };
-        Session::with_evaluator(stop, problem.n_constraints(), Box::new(move |x, last_good| problem.evaluate(x, &mut warm, last_good)))
+        Session::with_evaluator(
+            stop,
+            problem.n_constraints(),
+            Box::new(move |x, last_good| {
+                let ev = problem.evaluate(x, &mut warm, last_good);
+                log(&ev);
+                ev
+            }),
+        )
     }
 
     pub fn with_evaluator(stop: StopRules, n_constraints: usize, evaluator: Box<dyn FnMut(&[f64], Option<&Evaluation>) -> Evaluation + 'a>) -> Self {
@@ -781,15 +790,28 @@ pub fn starting_points(n: usize, count: usize) -> Vec<Vec<f64>> {
     (0..count).map(|k| (0..n).map(|d| 0.1 + 0.8 * halton(k as u32 + 1, PRIMES[d % PRIMES.len()])).collect()).collect()
 }
 
-/// Run every (optimiser, start) pair in parallel. `progress` is called after each run.
-pub fn run_all(problem: &OptProblem, optimisers: &[String], starts: &[Vec<f64>], progress: impl Fn(&RunResult) + Sync) -> Vec<RunResult> {
+/// Run every (optimiser, start) pair in parallel. `progress` is called after each run, and
+/// `each` after each evaluation with the run's name and the evaluation's index.
+pub fn run_all(
+    problem: &OptProblem,
+    optimisers: &[String],
+    starts: &[Vec<f64>],
+    progress: impl Fn(&RunResult) + Sync,
+    each: impl Fn(&str, usize, &Evaluation) + Sync,
+) -> Vec<RunResult> {
     use rayon::prelude::*;
     let jobs: Vec<(String, usize)> = optimisers.iter().flat_map(|o| (0..starts.len()).map(move |s| (o.clone(), s))).collect();
     let done = Mutex::new(());
     jobs.par_iter()
         .map(|(name, si)| {
             let t0 = Instant::now();
-            let mut session = Session::new(problem);
+            let run_name = format!("{name} start {si}");
+            let counter = std::cell::Cell::new(0usize);
+            let each = &each;
+            let mut session = Session::new(problem, move |e| {
+                counter.set(counter.get() + 1);
+                each(&run_name, counter.get(), e)
+            });
             let status = match optimiser(name) {
                 Some(o) => o.run(&mut session, &starts[*si]),
                 None => format!("unknown optimiser '{name}'"),

@@ -53,6 +53,16 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
             r.wall_time_s,
             b.map(|e| format!("{:.4} at {}", e.objective, fmt_design(&e.design))).unwrap_or_else(|| "none feasible".into())
         );
+    }, |run, k, e| {
+        eprintln!(
+            "  [{run}] evaluation {k}: objective {:.4}{} at {} ({} Newton iterations, {:.1} s{})",
+            e.objective,
+            if e.feasible { "" } else { " (infeasible)" },
+            fmt_design(&e.design),
+            e.newton_iterations,
+            e.time_s,
+            if e.status == "ok" { String::new() } else { format!(", {}", e.status) }
+        );
     });
     let (oref_unit, unit) = (op.objective.reference().0, op.objective.reference().1);
     let _ = oref_unit;

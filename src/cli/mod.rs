@@ -6,6 +6,8 @@ use clap::{Parser, Subcommand};
 
 pub mod evaluate;
 pub mod geometry;
+pub mod sweep;
+pub mod verify;
 
 /// twistopt — design optimisation of soft twisting pneumatic actuators.
 ///
@@ -31,6 +33,14 @@ pub enum Command {
     /// density and torque-rotation; write result.json, CSV tables, PNG/SVG plots and ParaView
     /// series to an output directory.
     Evaluate(evaluate::EvaluateArgs),
+    /// Run a problem's scenes on every design of a grid (Table I, every=K, or the problem's
+    /// [sweep] section), ramped to failure; parallel, resumable (re-run the same command),
+    /// shardable (--shard I/N); writes results.jsonl/csv, summary.json and Fig.-5 maps.
+    Sweep(sweep::SweepArgs),
+    /// Join the output directories of a sweep's shards.
+    SweepMerge(sweep::SweepMergeArgs),
+    /// Compare an optimiser's best design (DIR/best.json) with a sweep's best; write verify.json.
+    Verify(verify::VerifyArgs),
 }
 
 /// Run a parsed command line.
@@ -38,5 +48,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Geometry(args) => geometry::run(&args),
         Command::Evaluate(args) => evaluate::run(&args),
+        Command::Sweep(args) => sweep::run(&args),
+        Command::SweepMerge(args) => sweep::run_merge(&args),
+        Command::Verify(args) => verify::run(&args),
     }
 }

@@ -1124,3 +1124,209 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(usize, Vec<u64>, Vec<PathB
     files.extend(write_outputs(out, &manifest, &list, None, None, 0)?);
     Ok((list.len(), missing, files))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table1_grid_has_the_letters_axes() {
+        let g = Grid::table1();
+        assert_eq!(g.len(), 39_864);
+        assert_eq!(g.shape(), "r_mm 24 × l_mm 11 × alpha_deg 151");
+        let r = &g.axes[0].values;
+        assert_eq!(r[0], 5.0 * 3f64.sqrt());
+        assert!((r[9] - 13.160254037844386).abs() < 1e-12, "Fig. 5's r = 13.2 is 5√3 + 9·0.5");
+        assert!((r[22] - 19.660254037844386).abs() < 1e-12);
+        assert_eq!(r[23], 20.0);
+        assert_eq!(g.axes[1].values, (10..=20).map(f64::from).collect::<Vec<_>>());
+        assert_eq!(g.axes[2].values.first(), Some(&60.0));
+        assert_eq!(g.axes[2].values.last(), Some(&360.0));
+        // last axis fastest
+        let d = g.design(0);
+        assert_eq!((d.r_mm(), d.l_mm(), d.alpha_deg()), (r[0], 10.0, 60.0));
+        let d = g.design(151 + 3);
+        assert_eq!((d.r_mm(), d.l_mm(), d.alpha_deg()), (r[0], 11.0, 66.0));
+        let d = g.design(39_863);
+        assert_eq!((d.r_mm(), d.l_mm(), d.alpha_deg()), (20.0, 20.0, 360.0));
+        let e = g.every(4).unwrap();
+        assert_eq!(e.len(), 6 * 3 * 38);
+        assert_eq!(e.name, "table1/every=4");
+        assert!(g.every(0).is_err());
+        // every Table-I design is a valid geometry at the corners
+        for i in [0, 150, 39_713, 39_863] {
+            ActuatorGeometry::new(&g.design(i), RangePolicy::TableI).unwrap();
+        }
+    }
+
+    #[test]
+    fn stepped_values_include_the_end() {
+        assert_eq!(stepped_values("x", 10.0, 20.0, 5.0).unwrap(), vec![10.0, 15.0, 20.0]);
+        assert_eq!(stepped_values("x", 60.0, 360.0, 100.0).unwrap(), vec![60.0, 160.0, 260.0, 360.0]);
+        assert_eq!(stepped_values("x", 0.0, 1.0, 0.4).unwrap(), vec![0.0, 0.4, 0.8, 1.0]);
+        assert_eq!(stepped_values("x", 0.0, 0.3, 0.1).unwrap().len(), 4);
+        assert!(stepped_values("x", 1.0, 0.0, 0.1).unwrap_err().to_string().contains("sweep.x"));
+        assert!(stepped_values("x", 0.0, 1.0, 0.0).is_err());
+        assert!(stepped_values("x", 0.0, f64::NAN, 1.0).is_err());
+    }
+
+    fn section(text: &str) -> Result<Grid> {
+        grid_from_section(&toml::from_str::<toml::Table>(text).unwrap())
+    }
+
+    #[test]
+    fn sweep_sections() {
+        let g = section("r_mm = [10.0]\nl_mm = {from = 10, to = 20, step = 5}\nalpha_deg = [60, 90]\n").unwrap();
+        assert_eq!(g.name, "custom");
+        assert_eq!(g.len(), 6);
+        assert_eq!(g.axes.iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), vec!["r_mm", "l_mm", "alpha_deg"]);
+        let g = section("alpha_deg = [60, 90, 120]\nr_mm = [10]\nl_mm = [12]\nevery = 2\n").unwrap();
+        assert_eq!(g.axes[2].values, vec![60.0, 120.0]);
+        assert_eq!(g.name, "custom/every=2");
+        assert_eq!(section("grid = \"every=10\"\n").unwrap().len(), 3 * 2 * 16);
+        for (text, needle) in [
+            ("r_mm = [10]\nl_mm = [12]\n", "alpha_deg"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = [60]\nbogus = 1\n", "sweep.bogus"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = {from = 60, to = 90}\n", "step"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = [60, 60]\n", "twice"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = \"x\"\n", "sweep.alpha_deg"),
+            ("grid = \"every=0\"\n", "every"),
+            ("grid = \"table2\"\n", "sweep.grid"),
+            ("grid = \"table1\"\nr_mm = [10]\n", "not both"),
+            ("", "no grid"),
+        ] {
+            let e = section(text).unwrap_err().to_string();
+            assert!(e.contains(needle), "{text:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn shards_partition_the_grid() {
+        for s in ["3/2", "2/2", "1/0", "a/2", "1", "-1/2"] {
+            assert!(Shard::parse(s).is_err(), "{s}");
+        }
+        let n = 1001;
+        let shards: Vec<Shard> = (0..7).map(|i| Shard::parse(&format!("{i}/7")).unwrap()).collect();
+        assert_eq!(shards.iter().map(|s| s.size(n)).sum::<u64>(), n);
+        for i in 0..n {
+            assert_eq!(shards.iter().filter(|s| s.contains(i)).count(), 1);
+        }
+        for s in &shards {
+            assert_eq!(s.size(n), (0..n).filter(|&i| s.contains(i)).count() as u64);
+        }
+        assert_eq!(Shard::parse("9/10").unwrap().size(5), 0);
+    }
+
+    fn rec(p: f64, theta: f64, tau: f64, radius: f64) -> StepRecord {
+        StepRecord { p_kpa: p, theta_deg: theta, axial_mm: 0.0, tau_nm: tau, max_radius_mm: radius, cavity_volume_mm3: 1.0, min_det_f: 1.0, newton_iterations: 1 }
+    }
+
+    fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
+        SceneResult { scene: name.into(), status: "limit-point".into(), cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, wall_time_s: 0.0, fields: None }
+    }
+
+    #[test]
+    fn mode_summary_follows_the_letters_rule_and_the_ballooning_limit() {
+        // free reaches 60 kPa, blocked 50: Ω at 50 kPa; radius crosses 28.75 at 40 + 10·(28.75−26)/(30−26) kPa
+        let free = scene("free", vec![rec(0.0, 0.0, 0.0, 20.0), rec(20.0, -10.0, 0.0, 22.0), rec(40.0, -20.0, 0.0, 26.0), rec(60.0, -25.0, 0.0, 32.0)]);
+        let blocked = scene("blocked", vec![rec(0.0, 0.0, 0.0, 20.0), rec(25.0, 0.0, -0.2, 21.0), rec(50.0, 0.0, -0.3, 30.0)]);
+        let m = mode_summary(Some(&free), Some(&blocked), 28.75);
+        assert_eq!(m.theta_max_deg, Some(-25.0));
+        assert_eq!(m.p_theta_max_kpa, Some(60.0));
+        assert_eq!(m.tau_max_nm, Some(-0.3));
+        assert_eq!(m.p_tau_max_kpa, Some(50.0));
+        assert_eq!(m.p_omega_kpa, Some(50.0));
+        assert!((m.theta_omega_deg.unwrap() + 22.5).abs() < 1e-12);
+        let o = crate::evaluate::omega_letter(&free.steps, &blocked.steps, true).unwrap();
+        assert_eq!(m.omega_j_m3, Some(o.omega_j_m3));
+        assert!((o.omega_j_m3 - crate::scene::energy_density(22.5, 0.3)).abs() < 1e-9);
+        // radius at 50 kPa: free 29, blocked 30 → infeasible
+        assert_eq!(m.max_radius_mm, Some(30.0));
+        assert!(!m.feasible);
+        assert_eq!(m.max_radius_reached_mm, Some(32.0));
+        // ballooning-limited: free crosses at 40 + 20·(2.75/6) = 49.1667; blocked at 25 + 25·(7.75/9) = 46.5278
+        let pb = 25.0 + 25.0 * (7.75 / 9.0);
+        assert!((m.p_balloon_kpa.unwrap() - pb).abs() < 1e-9, "{:?}", m.p_balloon_kpa);
+        let ob = crate::evaluate::omega_at_pressure(&free.steps, &blocked.steps, pb).unwrap();
+        assert_eq!(m.omega_balloon_j_m3, Some(ob.omega_j_m3));
+        // a free scene alone: twist only
+        let m = mode_summary(Some(&free), None, 28.75);
+        assert_eq!(m.theta_max_deg, Some(-25.0));
+        assert_eq!((m.omega_j_m3, m.feasible), (None, false));
+        // feasible when the limit is higher
+        assert!(mode_summary(Some(&free), Some(&blocked), 40.0).feasible);
+    }
+
+    fn row(index: u64) -> Row {
+        let d = Design::new(10.0, 12.0, 60.0 + index as f64);
+        let mut r = empty_row(index, &d, 20.0);
+        r.status = "ok".into();
+        r.primary.omega_j_m3 = Some(index as f64);
+        r
+    }
+
+    #[test]
+    fn rows_file_survives_torn_writes() {
+        let dir = std::env::temp_dir().join(format!("twistopt-sweep-rows-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(RESULTS);
+        let w = RowWriter::open(&p, &read_rows(&p).unwrap()).unwrap();
+        for i in 0..3 {
+            w.append(&row(i)).unwrap();
+        }
+        drop(w);
+        // a write cut mid-line
+        let full = serde_json::to_string(&row(3)).unwrap();
+        let mut f = std::fs::OpenOptions::new().append(true).open(&p).unwrap();
+        f.write_all(&full.as_bytes()[..full.len() / 2]).unwrap();
+        drop(f);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.dropped, r.missing_newline), (3, 1, false));
+        let w = RowWriter::open(&p, &r).unwrap();
+        w.append(&row(3)).unwrap();
+        drop(w);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.dropped), (4, 0));
+        assert_eq!(r.rows.iter().map(|x| x.index).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
+        assert_eq!(r.rows[3], row(3));
+        // a complete row whose newline was cut is kept and completed; a duplicate id is skipped
+        let mut f = std::fs::OpenOptions::new().append(true).open(&p).unwrap();
+        f.write_all(serde_json::to_string(&row(4)).unwrap().as_bytes()).unwrap();
+        drop(f);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.missing_newline), (5, true));
+        let w = RowWriter::open(&p, &r).unwrap();
+        w.append(&row(1)).unwrap();
+        drop(w);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.dropped, r.missing_newline), (5, 1, false));
+        assert_eq!(std::fs::read_to_string(&p).unwrap().lines().count(), 6);
+        // NaN never reaches a row: absent values are null
+        let text = serde_json::to_string(&row(0)).unwrap();
+        assert!(text.contains("\"theta_max_deg\":null") && !text.contains("NaN"), "{text}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn invalid_designs_are_rows() {
+        let (problem, section) = problem_from_str(
+            "[load]\np_max_kPa = 10\n[fidelity]\nmesh = \"12x4x1\"\n[sweep]\nr_mm = [3.0]\nl_mm = [12]\nalpha_deg = [60]\n",
+            "t",
+            &[],
+        )
+        .unwrap();
+        let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap();
+        let v = cfg.problem.validate().unwrap();
+        let opts = cfg.problem.scene_options(&v);
+        let r = evaluate_design_guarded(0, &cfg.grid.design(0), cfg.grid.range, &v, &opts, cfg.p_max_kpa);
+        assert_eq!(r.status, "invalid-geometry");
+        assert!(r.cause.contains("r_mm = 3"), "{}", r.cause);
+        assert_eq!(r.id, "0:alpha_deg=60,l_mm=12,r_mm=3");
+        assert!(r.primary.omega_j_m3.is_none() && !r.primary.feasible);
+        // a list of target pressures is refused with a hint
+        let (problem, section) = problem_from_str("[load]\npressures_kPa = [10]\n[sweep]\ngrid = \"table1\"\n", "t", &[]).unwrap();
+        let e = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap_err().to_string();
+        assert!(e.contains("load.p_max_kPa"), "{e}");
+    }
+}

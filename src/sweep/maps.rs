@@ -183,7 +183,8 @@ where
         }
         chart.draw_series(cells).map_err(err)?;
     }
-    // colour bar
+    // colour bar (labels with about three significant digits of the range)
+    let digits = (2.0 - (vmax - vmin).log10().floor()).clamp(0.0, 6.0) as usize;
     let mut cb = ChartBuilder::on(&bar)
         .margin_top(40)
         .margin_bottom(55)
@@ -191,7 +192,7 @@ where
         .y_label_area_size(60)
         .build_cartesian_2d(0.0..1.0, vmin..vmax)
         .map_err(err)?;
-    cb.configure_mesh().disable_mesh().disable_x_axis().label_style((FONT, 12)).y_label_formatter(&|y| format!("{y:.3}")).draw().map_err(err)?;
+    cb.configure_mesh().disable_mesh().disable_x_axis().label_style((FONT, 12)).y_label_formatter(&|y| format!("{:.*}", digits, y)).draw().map_err(err)?;
     let n = 100;
     cb.draw_series((0..n).map(|k| {
         let a = vmin + (vmax - vmin) * k as f64 / n as f64;

@@ -30,12 +30,21 @@ pub struct OptimiserBest {
     pub status: String,
 }
 
+/// Keys of best.json besides the design parameters.
+pub const BEST_KEYS: [&str; 7] = ["p_kPa", "theta_deg", "tau_Nm", "omega_J_m3", "max_radius_mm", "evaluations", "status"];
+
 /// Read `DIR/best.json`.
 pub fn read_best(dir: &Path) -> Result<OptimiserBest> {
     let p = dir.join("best.json");
     let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
     let v: Value = serde_json::from_str(&text).map_err(|e| anyhow!("{}: not JSON ({e})", p.display()))?;
     let o = v.as_object().ok_or_else(|| anyhow!("{}: expected a JSON object", p.display()))?;
+    let space = DesignSpace::actuator();
+    let required: Vec<&str> = space.names().into_iter().chain(BEST_KEYS).collect();
+    let missing: Vec<&str> = required.iter().copied().filter(|k| !o.contains_key(*k)).collect();
+    if !missing.is_empty() {
+        bail!("{}: missing key(s) {} (required: {})", p.display(), missing.join(", "), required.join(", "));
+    }
     let num = |k: &str| -> Result<Option<f64>> {
         match o.get(k) {
             None => bail!("{}: missing key '{k}'", p.display()),

@@ -15,8 +15,8 @@ pub mod verify;
 /// triangular "horseshoe" of six arcs of radius r, whose lateral edge is a three-arc bellows with
 /// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
 ///
-/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports) and `evaluate` (FE
-/// load scenes of a problem file). Gradients and the optimiser are in progress. Run `twistopt <COMMAND> --help` for the options.
+/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports), `evaluate` (FE
+/// load scenes of a problem file), `sweep` / `sweep-merge` (grid sweeps) and `verify`. Gradients and the optimiser are in progress. Run `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
 #[command(name = "twistopt", version, propagate_version = true)]
 pub struct Cli {

@@ -206,6 +206,17 @@ fn killed_resumed_sharded_and_verified() {
     assert_eq!(v["sweep"]["best"]["omega_J_m3"].as_f64(), Some(best_omega));
     let txt = std::fs::read_to_string(opt.join("verify.txt")).unwrap();
     assert!(txt.contains("-0.50 %") && txt.contains("within 1 %") && txt.trim().lines().count() == 1, "{txt}");
+    // the same in the explicit combined mode; the pure-twist mode did not run in this sweep
+    let o = bin().arg("verify").arg(&problem).arg("--sweep").arg(&a).arg("--optimise").arg(&opt).args(["--mode", "combined", "--out"]).arg(d.join("v2")).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v2: Value = serde_json::from_str(&std::fs::read_to_string(d.join("v2/verify.json")).unwrap()).unwrap();
+    assert_eq!(v2["omega_relative_difference"], v["omega_relative_difference"]);
+    assert_eq!(v2["mode"], "combined");
+    for (mode, needle) in [("pure-twist", "in mode pure-twist"), ("bogus", "--mode 'bogus'")] {
+        let o = bin().arg("verify").arg(&problem).arg("--sweep").arg(&a).arg("--optimise").arg(&opt).args(["--mode", mode]).output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && e.contains(needle) && e.trim().lines().count() == 1, "{e}");
+    }
     // a best.json without a required key is a one-line error
     std::fs::write(opt.join("best.json"), r#"{"r_mm": 10, "l_mm": 12, "alpha_deg": 60}"#).unwrap();
     let o = bin().arg("verify").arg(&problem).arg("--sweep").arg(&a).arg("--optimise").arg(&opt).output().unwrap();

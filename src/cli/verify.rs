@@ -22,6 +22,10 @@ pub struct VerifyArgs {
     /// Override a problem value (section.key=value). Repeatable.
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
     pub set: Vec<String>,
+    /// Objective mode when the sweep ran both pairs of scenes: combined (free + blocked) or
+    /// pure-twist (default: the sweep rows' primary mode, combined when present).
+    #[arg(long, value_name = "combined|pure-twist")]
+    pub mode: Option<String>,
     /// Where to write verify.json and verify.txt (default: the optimiser directory).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
@@ -29,7 +33,7 @@ pub struct VerifyArgs {
 
 pub fn run(args: &VerifyArgs) -> Result<()> {
     let (problem, _) = load_problem(&args.problem, &args.set)?;
-    let (v, summary) = verify(&problem, &args.sweep, &args.optimise)?;
+    let (v, summary) = verify(&problem, &args.sweep, &args.optimise, args.mode.as_deref())?;
     let out = args.out.clone().unwrap_or_else(|| args.optimise.clone());
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let j = out.join("verify.json");

@@ -106,27 +106,36 @@ pub fn interpolate(steps: &[StepRecord], p: f64, value: impl Fn(&StepRecord) -> 
     })
 }
 
-/// Ω at one pressure from a free and a blocked scene, with the sign rule of the module docs.
-fn omega_at(free: &[StepRecord], blocked: &[StepRecord], p: f64) -> Option<Value> {
+/// θ, τ and Ω at one pressure (the letter's rule, see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct OmegaPoint {
+    #[serde(rename = "p_kPa")]
+    pub p_kpa: f64,
+    pub theta_deg: f64,
+    #[serde(rename = "tau_Nm")]
+    pub tau_nm: f64,
+    /// θ and τ have the same sign, so |θ| and |τ| were used
+    pub same_sign: bool,
+    #[serde(rename = "omega_J_m3")]
+    pub omega_j_m3: f64,
+}
+
+/// Ω at one pressure from a free and a blocked scene's steps, with the sign rule of the module
+/// docs; None when either scene's steps do not reach `p`.
+pub fn omega_at_pressure(free: &[StepRecord], blocked: &[StepRecord], p: f64) -> Option<OmegaPoint> {
     let theta = interpolate(free, p, |s| s.theta_deg)?;
     let tau = interpolate(blocked, p, |s| s.tau_nm)?;
     let same = theta * tau > 0.0;
     let omega = if same { energy_density(theta.abs(), tau.abs()) } else { energy_density(theta, tau) };
-    Some(json!({
-        "p_kPa": p,
-        "theta_deg": theta,
-        "tau_Nm": tau,
-        "same_sign": same,
-        "abs_values_used": same,
-        "omega_J_m3": omega,
-    }))
+    Some(OmegaPoint { p_kpa: p, theta_deg: theta, tau_nm: tau, same_sign: same, omega_j_m3: omega })
 }
 
-/// Ω details for one pair of scenes: the letter's rule on each branch and the table at the
-/// requested pressures.
-fn omega_pair(free: &SceneResult, blocked: &SceneResult, requested: &[f64]) -> Value {
-    let extreme = |r: &SceneResult, positive: bool| {
-        r.steps
+/// The letter's common pressure of a free and a blocked scene on one branch (`positive` or
+/// vacuum): (common, free's extreme, blocked's extreme) converged pressures, None when a scene
+/// has no converged step on that branch.
+pub fn common_pressure(free: &[StepRecord], blocked: &[StepRecord], positive: bool) -> Option<(f64, f64, f64)> {
+    let extreme = |steps: &[StepRecord]| {
+        steps
             .iter()
             .map(|s| s.p_kpa)
             .filter(|p| if positive { *p > 0.0 } else { *p < 0.0 })
@@ -136,10 +145,34 @@ fn omega_pair(free: &SceneResult, blocked: &SceneResult, requested: &[f64]) -> V
                 Some(a) => a.min(p),
             }))
     };
+    let (pf, pb) = (extreme(free)?, extreme(blocked)?);
+    Some((if positive { pf.min(pb) } else { pf.max(pb) }, pf, pb))
+}
+
+/// Ω by the letter's rule on one branch: at the common pressure ([`common_pressure`]).
+pub fn omega_letter(free: &[StepRecord], blocked: &[StepRecord], positive: bool) -> Option<OmegaPoint> {
+    let (pc, _, _) = common_pressure(free, blocked, positive)?;
+    omega_at_pressure(free, blocked, pc)
+}
+
+fn omega_at(free: &[StepRecord], blocked: &[StepRecord], p: f64) -> Option<Value> {
+    let o = omega_at_pressure(free, blocked, p)?;
+    Some(json!({
+        "p_kPa": o.p_kpa,
+        "theta_deg": o.theta_deg,
+        "tau_Nm": o.tau_nm,
+        "same_sign": o.same_sign,
+        "abs_values_used": o.same_sign,
+        "omega_J_m3": o.omega_j_m3,
+    }))
+}
+
+/// Ω details for one pair of scenes: the letter's rule on each branch and the table at the
+/// requested pressures.
+fn omega_pair(free: &SceneResult, blocked: &SceneResult, requested: &[f64]) -> Value {
     let branch = |positive: bool| -> Value {
-        match (extreme(free, positive), extreme(blocked, positive)) {
-            (Some(pf), Some(pb)) => {
-                let pc = if positive { pf.min(pb) } else { pf.max(pb) };
+        match common_pressure(&free.steps, &blocked.steps, positive) {
+            Some((pc, pf, pb)) => {
                 let mut v = omega_at(&free.steps, &blocked.steps, pc).unwrap_or(Value::Null);
                 if let Some(o) = v.as_object_mut() {
                     o.insert(format!("p_{}_reached_kPa", free.scene.replace('-', "_")), json!(pf));
@@ -147,7 +180,7 @@ fn omega_pair(free: &SceneResult, blocked: &SceneResult, requested: &[f64]) -> V
                 }
                 v
             }
-            _ => Value::Null,
+            None => Value::Null,
         }
     };
     let positive = branch(true);

@@ -6,6 +6,7 @@
 //! * [`export`]: VTU/PVD, STL and INP writers;
 //! * [`problem`]: TOML problem files; [`evaluate`]: run a problem's scenes and write its outputs;
 //! * [`plot`]: PNG/SVG line plots with an embedded font;
+//! * [`sweep`]: resumable, shardable grid sweeps (the letter's Table I), Fig.-5 maps, optimiser check;
 //! * [`cli`]: the command-line interface.
 pub use twistopt_solver as solver;
 
@@ -19,3 +20,4 @@ pub mod optimise;
 pub mod plot;
 pub mod problem;
 pub mod scene;
+pub mod sweep;

@@ -56,13 +56,13 @@ impl LinePlot {
     }
 }
 
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 const WIDTH: u32 = 900;
 const HEIGHT: u32 = 620;
 
 static FONT_INIT: Once = Once::new();
 
-fn register_font() -> Result<()> {
+pub(crate) fn register_font() -> Result<()> {
     let mut ok = true;
     FONT_INIT.call_once(|| {
         ok = plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()

@@ -8,6 +8,8 @@ pub mod evaluate;
 pub mod gradient;
 pub mod optimise;
 pub mod geometry;
+pub mod sweep;
+pub mod verify;
 
 /// twistopt — design optimisation of soft twisting pneumatic actuators.
 ///
@@ -15,8 +17,10 @@ pub mod geometry;
 /// triangular "horseshoe" of six arcs of radius r, whose lateral edge is a three-arc bellows with
 /// waist radius l, and whose top face is pre-twisted by α (see GEOMETRY.md).
 ///
-/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports) and `evaluate` (FE
-/// load scenes of a problem file), `gradient` (adjoint sensitivities), `optimise` (gradient-based design optimisation). Run `twistopt <COMMAND> --help` for the options.
+/// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports), `evaluate` (FE
+/// load scenes of a problem file), `gradient` (adjoint sensitivities), `optimise` (gradient-based
+/// design optimisation), `sweep` / `sweep-merge` (grid sweeps) and `verify`. Run
+/// `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
 #[command(name = "twistopt", version, propagate_version = true)]
 pub struct Cli {
@@ -41,6 +45,14 @@ pub enum Command {
     /// ballooning limit (problem file [optimise] section): nlopt MMA/SLSQP and a pure-Rust SQP,
     /// multi-start in parallel. Writes DIR/history.json, DIR/best.json and convergence plots.
     Optimise(optimise::OptimiseArgs),
+    /// Run a problem's scenes on every design of a grid (Table I, every=K, or the problem's
+    /// [sweep] section), ramped to failure; parallel, resumable (re-run the same command),
+    /// shardable (--shard I/N); writes results.jsonl/csv, summary.json and Fig.-5 maps.
+    Sweep(sweep::SweepArgs),
+    /// Join the output directories of a sweep's shards.
+    SweepMerge(sweep::SweepMergeArgs),
+    /// Compare an optimiser's best design (DIR/best.json) with a sweep's best; write verify.json.
+    Verify(verify::VerifyArgs),
 }
 
 /// Run a parsed command line.
@@ -50,5 +62,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Evaluate(args) => evaluate::run(&args),
         Command::Gradient(args) => gradient::run(&args),
         Command::Optimise(args) => optimise::run(&args),
+        Command::Sweep(args) => sweep::run(&args),
+        Command::SweepMerge(args) => sweep::run_merge(&args),
+        Command::Verify(args) => verify::run(&args),
     }
 }

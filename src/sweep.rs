@@ -1,0 +1,1332 @@
+//! Grid sweeps: a problem's scenes on every design of a grid (the letter's Table I, a
+//! subsample, or custom axes), each ramped to failure or to the ballooning limit, one JSON line
+//! per design; resumable, shardable, parallel over designs.
+//!
+//! * [`Grid`]: named axes (one per design parameter of the [`DesignSpace`]); designs are indexed
+//!   in mixed radix with the last axis (α) varying fastest. [`Grid::table1`] is the letter's
+//!   Table I grid: r = 5√3 + 0.5k mm (k = 0 … 22) and r = 20, l = 10 … 20 mm step 1,
+//!   α = 60 … 360° step 2 — 24 × 11 × 151 = 39 864 designs. An axis `{from, to, step}` holds
+//!   from + k·step up to `to`, and `to` itself when the steps do not land on it (that is how the
+//!   letter's r axis reaches 20, shown in its Fig. 5).
+//! * [`evaluate_design`]: one design → one [`Row`] (never an error: invalid geometry, model
+//!   errors and panics are rows with a status).
+//! * [`run_sweep`]: runs the designs of one shard that are not yet in `DIR/results.jsonl`
+//!   (appends one line per design: a single `write` + flush + fsync; a truncated last line left
+//!   by a kill is dropped on resume), then writes `results.csv`, `summary.json` and the maps.
+//! * [`merge`]: joins the directories of the shards of one sweep.
+//!
+//! Maps (the letter's Fig. 5) are in [`maps`]; the optimiser check in [`verify`].
+
+pub mod maps;
+pub mod verify;
+
+use anyhow::{anyhow, bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::collections::{BTreeMap, BTreeSet};
+use std::io::{IsTerminal, Read, Seek, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use crate::evaluate::{common_pressure, interpolate, omega_at_pressure, select_steps};
+use crate::geometry::{ActuatorGeometry, Design, DesignSpace, RangePolicy, P_ALPHA, P_L, P_R};
+use crate::problem::{apply_override, LoadPlan, Problem, Validated};
+use crate::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, StepRecord};
+
+/// Format tag of manifests and rows.
+pub const FORMAT: &str = "twistopt-sweep/1";
+/// Rows file in a sweep directory.
+pub const RESULTS: &str = "results.jsonl";
+/// Manifest file in a sweep directory.
+pub const MANIFEST: &str = "manifest.json";
+
+/// The letter's Table I steps by parameter name (bounds come from [`DesignSpace::actuator`]).
+pub const TABLE1_STEPS: &[(&str, f64)] = &[(P_R, 0.5), (P_L, 1.0), (P_ALPHA, 2.0)];
+
+/// Largest number of designs a grid may have.
+const MAX_DESIGNS: u64 = 100_000_000;
+
+// ------------------------------------------------------------------------------------------
+// Grid
+
+/// One axis of a grid: a design parameter and its values.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Axis {
+    pub name: String,
+    pub values: Vec<f64>,
+}
+
+/// A full-factorial grid over named design parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Grid {
+    /// `table1`, `table1/every=K`, `custom`, `custom/every=K`
+    pub name: String,
+    /// design box the designs are validated against (`TableI` or `Extended`)
+    pub range: RangePolicy,
+    pub axes: Vec<Axis>,
+}
+
+/// from, from + step, … up to `to` (within round-off), and `to` when the steps miss it.
+pub fn stepped_values(name: &str, from: f64, to: f64, step: f64) -> Result<Vec<f64>> {
+    if !(from.is_finite() && to.is_finite() && step.is_finite()) {
+        bail!("sweep.{name}: from, to and step must be finite numbers (got from = {from}, to = {to}, step = {step})");
+    }
+    if step <= 0.0 {
+        bail!("sweep.{name}: step = {step} must be > 0");
+    }
+    if to < from {
+        bail!("sweep.{name}: to = {to} is below from = {from}");
+    }
+    let tol = 1e-9 * (1.0 + from.abs().max(to.abs()));
+    let n = ((to - from + tol) / step).floor();
+    if n > 1e7 {
+        bail!("sweep.{name}: {n} steps from {from} to {to} by {step} is too many");
+    }
+    let mut v: Vec<f64> = (0..=n as u64).map(|k| from + k as f64 * step).collect();
+    if let Some(last) = v.last_mut() {
+        if (*last - to).abs() <= tol {
+            *last = to;
+        } else if *last < to {
+            v.push(to);
+        }
+    }
+    Ok(v)
+}
+
+impl Grid {
+    /// The letter's Table I grid (bounds from the design space, steps from [`TABLE1_STEPS`]).
+    pub fn table1() -> Grid {
+        let space = DesignSpace::actuator();
+        let axes = space
+            .params
+            .iter()
+            .map(|p| {
+                let step = TABLE1_STEPS.iter().find(|s| s.0 == p.name).map(|s| s.1).expect("every parameter has a Table-I step");
+                Axis { name: p.name.clone(), values: stepped_values(&p.name, p.min, p.max, step).expect("Table-I bounds are valid") }
+            })
+            .collect();
+        Grid { name: "table1".into(), range: RangePolicy::TableI, axes }
+    }
+
+    /// Every K-th value of each axis (starting with the first).
+    pub fn every(&self, k: usize) -> Result<Grid> {
+        if k == 0 {
+            bail!("grid every=0: K must be a positive integer");
+        }
+        if k == 1 {
+            return Ok(self.clone());
+        }
+        Ok(Grid {
+            name: format!("{}/every={k}", self.name),
+            range: self.range,
+            axes: self.axes.iter().map(|a| Axis { name: a.name.clone(), values: a.values.iter().copied().step_by(k).collect() }).collect(),
+        })
+    }
+
+    /// Number of designs.
+    pub fn len(&self) -> u64 {
+        self.axes.iter().map(|a| a.values.len() as u64).product()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// "r_mm 24 × l_mm 11 × alpha_deg 151"
+    pub fn shape(&self) -> String {
+        self.axes.iter().map(|a| format!("{} {}", a.name, a.values.len())).collect::<Vec<_>>().join(" × ")
+    }
+
+    /// The design with this index (last axis fastest).
+    pub fn design(&self, index: u64) -> Design {
+        let mut rem = index;
+        let mut values = BTreeMap::new();
+        for a in self.axes.iter().rev() {
+            let n = a.values.len() as u64;
+            values.insert(a.name.clone(), a.values[(rem % n) as usize]);
+            rem /= n;
+        }
+        Design { values }
+    }
+
+    /// Check the axes against the design space: every parameter exactly once, finite values,
+    /// no duplicates, not too many designs.
+    pub fn check(&self) -> Result<()> {
+        let space = DesignSpace::actuator();
+        for a in &self.axes {
+            if space.get(&a.name).is_none() {
+                bail!("sweep.{}: unknown design parameter (known: {})", a.name, space.names().join(", "));
+            }
+            if a.values.is_empty() {
+                bail!("sweep.{}: no values", a.name);
+            }
+            if let Some(x) = a.values.iter().find(|x| !x.is_finite()) {
+                bail!("sweep.{}: value {x} is not a finite number", a.name);
+            }
+            let mut s = a.values.clone();
+            s.sort_by(f64::total_cmp);
+            if s.windows(2).any(|w| w[0] == w[1]) {
+                bail!("sweep.{}: a value is listed twice", a.name);
+            }
+        }
+        for p in &space.params {
+            match self.axes.iter().filter(|a| a.name == p.name).count() {
+                0 => bail!("sweep: no axis for design parameter {} (give every one of {}; a fixed value is a one-element list)", p.name, space.names().join(", ")),
+                1 => {}
+                _ => bail!("sweep.{}: given twice", p.name),
+            }
+        }
+        if self.len() > MAX_DESIGNS {
+            bail!("sweep: the grid has {} designs (limit {MAX_DESIGNS})", self.len());
+        }
+        Ok(())
+    }
+
+    /// Parse a `--grid` value: `table1` or `every=K` (Table I subsampled).
+    pub fn parse_spec(spec: &str) -> Result<Grid> {
+        let s = spec.trim();
+        if s == "table1" {
+            return Ok(Grid::table1());
+        }
+        if let Some(k) = s.strip_prefix("every=") {
+            let k: usize = k.trim().parse().map_err(|_| anyhow!("--grid '{spec}': K in every=K must be a positive integer"))?;
+            return Grid::table1().every(k).map_err(|e| anyhow!("--grid '{spec}': {e}"));
+        }
+        bail!("--grid '{spec}': expected table1 or every=K (custom axes go in the problem file's [sweep] section)")
+    }
+}
+
+/// The `[sweep]` section of a problem file.
+///
+/// ```toml
+/// [sweep]
+/// # either a named grid …
+/// grid = "table1"                            # or "every=K"
+/// # … or one axis per design parameter: {from, to, step} or a list
+/// r_mm = [8.660254037844386]
+/// l_mm = { from = 10, to = 20, step = 5 }
+/// alpha_deg = { from = 60, to = 360, step = 60 }
+/// every = 1                                  # optional: keep every K-th value of each axis
+/// range = "table1"                           # or "extended": the box designs are checked against
+/// ```
+pub fn grid_from_section(section: &toml::Table) -> Result<Grid> {
+    let mut named: Option<Grid> = None;
+    let mut axes = Vec::new();
+    let mut every = 1usize;
+    let mut range = RangePolicy::TableI;
+    let space = DesignSpace::actuator();
+    for (k, v) in section {
+        match k.as_str() {
+            "grid" => {
+                let s = v.as_str().ok_or_else(|| anyhow!("sweep.grid must be a string (\"table1\" or \"every=K\")"))?;
+                named = Some(Grid::parse_spec(s).map_err(|e| anyhow!("sweep.grid: {e}"))?);
+            }
+            "every" => {
+                every = v.as_integer().filter(|k| *k >= 1).ok_or_else(|| anyhow!("sweep.every must be a positive integer"))? as usize;
+            }
+            "range" => {
+                range = match v.as_str() {
+                    Some("table1") => RangePolicy::TableI,
+                    Some("extended") => RangePolicy::Extended,
+                    _ => bail!("sweep.range must be \"table1\" or \"extended\""),
+                }
+            }
+            name if space.get(name).is_some() => axes.push(Axis { name: name.to_string(), values: axis_values(name, v)? }),
+            other => bail!(
+                "sweep.{other}: unknown key (expected grid, every, range or a design parameter: {})",
+                space.names().join(", ")
+            ),
+        }
+    }
+    let grid = match (named, axes.is_empty()) {
+        (Some(_), false) => bail!("sweep: give either sweep.grid or axes per parameter, not both"),
+        (Some(g), true) => g,
+        (None, false) => {
+            // keep the design-space order so that α varies fastest
+            axes.sort_by_key(|a| space.params.iter().position(|p| p.name == a.name));
+            Grid { name: "custom".into(), range, axes }
+        }
+        (None, true) => bail!("sweep: the [sweep] section has no grid (give grid = \"table1\" or axes such as r_mm = [..])"),
+    };
+    let mut grid = grid.every(every)?;
+    grid.range = range;
+    grid.check()?;
+    Ok(grid)
+}
+
+fn axis_values(name: &str, v: &toml::Value) -> Result<Vec<f64>> {
+    let num = |x: &toml::Value, what: &str| -> Result<f64> {
+        x.as_float().or_else(|| x.as_integer().map(|i| i as f64)).ok_or_else(|| anyhow!("sweep.{name}.{what} must be a number"))
+    };
+    match v {
+        toml::Value::Array(list) => list.iter().map(|x| num(x, "values")).collect(),
+        toml::Value::Table(t) => {
+            for k in t.keys() {
+                if !["from", "to", "step"].contains(&k.as_str()) {
+                    bail!("sweep.{name}.{k}: unknown key (expected from, to, step)");
+                }
+            }
+            let get = |k: &str| -> Result<f64> { num(t.get(k).ok_or_else(|| anyhow!("sweep.{name}: missing '{k}' (expected {{from, to, step}})"))?, k) };
+            stepped_values(name, get("from")?, get("to")?, get("step")?)
+        }
+        _ => bail!("sweep.{name} must be a list of values or {{from = .., to = .., step = ..}}"),
+    }
+}
+
+/// Shard `I/N` (0 ≤ I < N): the designs whose grid index i has i mod N = I.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    pub index: u64,
+    pub count: u64,
+}
+
+impl Default for Shard {
+    fn default() -> Self {
+        Shard { index: 0, count: 1 }
+    }
+}
+
+impl Shard {
+    pub fn parse(s: &str) -> Result<Shard> {
+        let bad = || anyhow!("--shard '{s}': expected I/N with integers 0 <= I < N (e.g. 0/4 … 3/4)");
+        let (i, n) = s.trim().split_once('/').ok_or_else(bad)?;
+        let (i, n): (u64, u64) = (i.trim().parse().map_err(|_| bad())?, n.trim().parse().map_err(|_| bad())?);
+        if n == 0 || i >= n {
+            return Err(bad());
+        }
+        Ok(Shard { index: i, count: n })
+    }
+
+    pub fn contains(&self, index: u64) -> bool {
+        index % self.count == self.index
+    }
+
+    /// Number of the grid's designs in this shard.
+    pub fn size(&self, n: u64) -> u64 {
+        if n > self.index {
+            (n - self.index).div_ceil(self.count)
+        } else {
+            0
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// Sweep configuration and manifest
+
+/// A sweep: the problem (everything but the design), the grid and the shard.
+#[derive(Clone, Debug)]
+pub struct SweepConfig {
+    pub problem: Problem,
+    pub grid: Grid,
+    pub shard: Shard,
+    /// ramp end (kPa): load.p_max_kPa
+    pub p_max_kpa: f64,
+}
+
+/// The problem file's text → (problem without `[sweep]`, the `[sweep]` table if any), with
+/// `--set` overrides applied (they may address `sweep.*` too). A missing `[design]` is filled
+/// with a placeholder (the sweep's grid gives the designs).
+pub fn load_problem(path: &Path, overrides: &[String]) -> Result<(Problem, Option<toml::Table>)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read problem file {}", path.display()))?;
+    problem_from_str(&text, &path.display().to_string(), overrides)
+}
+
+/// [`load_problem`] on text (`origin` names it in errors).
+pub fn problem_from_str(text: &str, origin: &str, overrides: &[String]) -> Result<(Problem, Option<toml::Table>)> {
+    // parse errors are reported by Problem's own parser (with line and column)
+    let mut table: toml::Table = match toml::from_str(text) {
+        Ok(t) => t,
+        Err(_) => {
+            Problem::from_str_with(text, origin, &[])?;
+            bail!("{origin}: not a valid TOML document")
+        }
+    };
+    for o in overrides {
+        apply_override(&mut table, o)?;
+    }
+    let sweep = match table.remove("sweep") {
+        None => None,
+        Some(toml::Value::Table(t)) => Some(t),
+        Some(_) => bail!("{origin}: sweep must be a section [sweep]"),
+    };
+    if !table.contains_key("design") {
+        let d = DesignSpace::actuator();
+        let mut t = toml::Table::new();
+        for p in &d.params {
+            t.insert(p.name.clone(), toml::Value::Float(p.min));
+        }
+        table.insert("design".into(), toml::Value::Table(t));
+    }
+    let merged = toml::to_string(&table).map_err(|e| anyhow!("{origin}: {e}"))?;
+    let problem = Problem::from_str_with(&merged, origin, &[])?;
+    Ok((problem, sweep))
+}
+
+impl SweepConfig {
+    /// Check the problem and build the configuration. `grid`: a `--grid` value overriding the
+    /// file's `[sweep]` section.
+    pub fn new(problem: Problem, section: Option<&toml::Table>, grid: Option<&str>, shard: Shard) -> Result<SweepConfig> {
+        let grid = match (grid, section) {
+            (Some(g), _) => Grid::parse_spec(g)?,
+            (None, Some(s)) => grid_from_section(s)?,
+            (None, None) => bail!("no grid: give --grid table1 | every=K, or a [sweep] section in the problem file"),
+        };
+        grid.check()?;
+        let v = problem.validate()?;
+        let p_max_kpa = match v.load {
+            LoadPlan::Ramp(p) => p,
+            LoadPlan::Targets(_) => bail!(
+                "load: a sweep ramps each design to failure: give load.p_max_kPa (e.g. --set load.p_max_kPa=150) instead of load.pressures_kPa"
+            ),
+        };
+        Ok(SweepConfig { problem, grid, shard, p_max_kpa })
+    }
+
+    /// The effective problem as JSON without the design (and without output switches).
+    pub fn problem_json(&self) -> Value {
+        let mut p = serde_json::to_value(&self.problem).unwrap_or(Value::Null);
+        if let Some(o) = p.as_object_mut() {
+            o.remove("design");
+            o.remove("output");
+        }
+        p
+    }
+
+    /// Mesh size and element kind.
+    pub fn fidelity(&self) -> Result<String> {
+        let v = self.problem.validate()?;
+        Ok(format!("{} {:?}", v.mesh.size_string(), v.mesh.kind))
+    }
+
+    pub fn manifest(&self) -> Result<Manifest> {
+        let problem = self.problem_json();
+        let fidelity = self.fidelity()?;
+        let key = serde_json::to_string(&json!({"grid": self.grid, "problem": problem, "fidelity": fidelity}))?;
+        let mut h = fnv::FnvHasher::default();
+        std::hash::Hasher::write(&mut h, key.as_bytes());
+        Ok(Manifest {
+            format: FORMAT.into(),
+            n_designs: self.grid.len(),
+            n_designs_shard: self.shard.size(self.grid.len()),
+            grid: self.grid.clone(),
+            fidelity,
+            problem,
+            sweep_hash: format!("{:016x}", std::hash::Hasher::finish(&h)),
+            shard: self.shard,
+        })
+    }
+}
+
+/// `DIR/manifest.json`: what a sweep directory holds. A directory is only resumed by the same
+/// grid, problem, fidelity and shard.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub grid: Grid,
+    pub n_designs: u64,
+    pub fidelity: String,
+    /// effective problem without design and output switches
+    pub problem: Value,
+    /// FNV-1a 64 of grid + problem + fidelity (the same for every shard of one sweep)
+    pub sweep_hash: String,
+    pub shard: Shard,
+    pub n_designs_shard: u64,
+}
+
+impl Manifest {
+    pub fn read(dir: &Path) -> Result<Option<Manifest>> {
+        let p = dir.join(MANIFEST);
+        if !p.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
+        let m: Manifest = serde_json::from_str(&text).map_err(|e| anyhow!("{}: not a sweep manifest ({e})", p.display()))?;
+        Ok(Some(m))
+    }
+
+    /// Write atomically (temporary file + rename).
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        write_atomic(&dir.join(MANIFEST), &(serde_json::to_string_pretty(self)? + "\n"))
+    }
+
+    /// Why `other` may not be resumed into a directory holding `self`; None when compatible.
+    pub fn mismatch(&self, other: &Manifest) -> Option<String> {
+        let mut why = Vec::new();
+        if self.format != other.format {
+            why.push(format!("format {} vs {}", self.format, other.format));
+        }
+        if self.grid != other.grid {
+            why.push(format!("grid '{}' ({} designs) vs '{}' ({} designs)", self.grid.name, self.grid.len(), other.grid.name, other.grid.len()));
+        }
+        if self.fidelity != other.fidelity {
+            why.push(format!("fidelity {} vs {}", self.fidelity, other.fidelity));
+        }
+        if self.problem != other.problem {
+            let keys: Vec<String> = match (self.problem.as_object(), other.problem.as_object()) {
+                (Some(a), Some(b)) => a.keys().chain(b.keys()).filter(|k| a.get(*k) != b.get(*k)).cloned().collect::<BTreeSet<_>>().into_iter().collect(),
+                _ => vec!["problem".into()],
+            };
+            why.push(format!("problem sections differ: {}", keys.join(", ")));
+        }
+        if self.shard != other.shard {
+            why.push(format!("shard {}/{} vs {}/{}", self.shard.index, self.shard.count, other.shard.index, other.shard.count));
+        }
+        (!why.is_empty()).then(|| why.join("; "))
+    }
+}
+
+fn write_atomic(path: &Path, text: &str) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    {
+        let mut f = std::fs::File::create(&tmp).with_context(|| format!("cannot write {}", tmp.display()))?;
+        f.write_all(text.as_bytes())?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+// ------------------------------------------------------------------------------------------
+// Rows
+
+/// Per-scene outcome in a row.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneSummary {
+    pub status: String,
+    pub cause: String,
+    /// highest converged pressure (kPa)
+    #[serde(rename = "p_reached_kPa")]
+    pub p_reached_kpa: Option<f64>,
+    pub steps: usize,
+    pub dofs: usize,
+    pub newton_iterations: usize,
+    pub wall_time_s: f64,
+}
+
+/// The outputs of one mode (free + blocked, or pure-twist + pure-twist-blocked) of a design.
+/// Absent values are `null` (never NaN).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ModeSummary {
+    /// θ (signed, about +z) at the step of largest |θ| of the free-like scene, and its pressure
+    pub theta_max_deg: Option<f64>,
+    #[serde(rename = "p_theta_max_kPa")]
+    pub p_theta_max_kpa: Option<f64>,
+    /// τ (signed) at the step of largest |τ| of the blocked-like scene, and its pressure
+    #[serde(rename = "tau_max_Nm")]
+    pub tau_max_nm: Option<f64>,
+    #[serde(rename = "p_tau_max_kPa")]
+    pub p_tau_max_kpa: Option<f64>,
+    /// Ω by the letter's rule (common pressure = lower of the two scenes' highest converged
+    /// pressures), with θ, τ and that pressure
+    #[serde(rename = "omega_J_m3")]
+    pub omega_j_m3: Option<f64>,
+    #[serde(rename = "p_omega_kPa")]
+    pub p_omega_kpa: Option<f64>,
+    pub theta_omega_deg: Option<f64>,
+    #[serde(rename = "tau_omega_Nm")]
+    pub tau_omega_nm: Option<f64>,
+    /// Ω at the ballooning-limited pressure: the common pressure, lowered to where either
+    /// scene's max radius reaches the ballooning limit (interpolated)
+    #[serde(rename = "omega_balloon_J_m3")]
+    pub omega_balloon_j_m3: Option<f64>,
+    #[serde(rename = "p_balloon_kPa")]
+    pub p_balloon_kpa: Option<f64>,
+    /// max deformed radius of the two scenes at the Ω pressure (interpolated)
+    pub max_radius_mm: Option<f64>,
+    /// max deformed radius over every converged step of the two scenes
+    pub max_radius_reached_mm: Option<f64>,
+    /// Ω available and max radius at its pressure ≤ the ballooning limit
+    pub feasible: bool,
+}
+
+/// One design's result: one line of `results.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Row {
+    /// `<index>:<name=value,…>` (index in the full grid; values in shortest round-trip form)
+    pub id: String,
+    pub index: u64,
+    pub design: BTreeMap<String, f64>,
+    /// `ok`, `no-common-pressure`, `invalid-geometry`, `model-error` or `error`
+    pub status: String,
+    pub cause: String,
+    /// `combined` (free + blocked) or `pure-twist`: the mode of the top-level values
+    pub mode: Option<String>,
+    #[serde(flatten)]
+    pub primary: ModeSummary,
+    /// every mode that ran (including the primary one)
+    pub modes: BTreeMap<String, ModeSummary>,
+    pub scenes: BTreeMap<String, SceneSummary>,
+    #[serde(rename = "p_max_kPa")]
+    pub p_max_kpa: f64,
+    pub wall_time_s: f64,
+}
+
+/// The row id of a design.
+pub fn design_id(index: u64, design: &Design) -> String {
+    let canon: Vec<String> = design.values.iter().map(|(k, v)| format!("{k}={v}")).collect();
+    format!("{index}:{}", canon.join(","))
+}
+
+fn fin(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+/// Highest converged positive pressure of a scene.
+fn p_reached(steps: &[StepRecord]) -> Option<f64> {
+    steps.iter().map(|s| s.p_kpa).filter(|p| *p > 0.0 && p.is_finite()).fold(None, |a: Option<f64>, p| Some(a.map_or(p, |a| a.max(p))))
+}
+
+/// The step with the largest |value| on the positive branch.
+fn max_abs(steps: &[StepRecord], value: impl Fn(&StepRecord) -> f64) -> Option<(f64, f64)> {
+    steps
+        .iter()
+        .filter(|s| s.p_kpa > 0.0 && value(s).is_finite())
+        .max_by(|a, b| value(a).abs().total_cmp(&value(b).abs()))
+        .map(|s| (value(s), s.p_kpa))
+}
+
+/// Pressure where the max radius first reaches `limit` on the positive branch (interpolated),
+/// or the highest converged pressure when it never does.
+fn p_radius_limit(steps: &[StepRecord], limit: f64) -> Option<f64> {
+    let mut s: Vec<&StepRecord> = steps.iter().filter(|s| s.p_kpa >= 0.0).collect();
+    s.sort_by(|a, b| a.p_kpa.total_cmp(&b.p_kpa));
+    for w in s.windows(2) {
+        if w[1].max_radius_mm > limit {
+            let (r0, r1) = (w[0].max_radius_mm, w[1].max_radius_mm);
+            let t = if r1 > r0 { ((limit - r0) / (r1 - r0)).clamp(0.0, 1.0) } else { 0.0 };
+            return Some(w[0].p_kpa + t * (w[1].p_kpa - w[0].p_kpa));
+        }
+    }
+    p_reached(steps)
+}
+
+/// The summary of one mode from its free-like and blocked-like scenes (either may be missing).
+pub fn mode_summary(free: Option<&SceneResult>, blocked: Option<&SceneResult>, limit_mm: f64) -> ModeSummary {
+    let mut m = ModeSummary::default();
+    if let Some((th, p)) = free.and_then(|f| max_abs(&f.steps, |s| s.theta_deg)) {
+        m.theta_max_deg = Some(th);
+        m.p_theta_max_kpa = Some(p);
+    }
+    if let Some((tau, p)) = blocked.and_then(|b| max_abs(&b.steps, |s| s.tau_nm)) {
+        m.tau_max_nm = Some(tau);
+        m.p_tau_max_kpa = Some(p);
+    }
+    let all: Vec<&StepRecord> = free.iter().chain(blocked.iter()).flat_map(|r| r.steps.iter()).collect();
+    m.max_radius_reached_mm = all.iter().map(|s| s.max_radius_mm).filter(|x| x.is_finite()).fold(None, |a: Option<f64>, x| Some(a.map_or(x, |a| a.max(x))));
+    let (Some(f), Some(b)) = (free, blocked) else { return m };
+    if let Some((pc, _, _)) = common_pressure(&f.steps, &b.steps, true) {
+        if let Some(o) = omega_at_pressure(&f.steps, &b.steps, pc) {
+            m.omega_j_m3 = fin(o.omega_j_m3);
+            m.p_omega_kpa = fin(o.p_kpa);
+            m.theta_omega_deg = fin(o.theta_deg);
+            m.tau_omega_nm = fin(o.tau_nm);
+            let radius = |r: &SceneResult| interpolate(&r.steps, pc, |s| s.max_radius_mm);
+            m.max_radius_mm = match (radius(f), radius(b)) {
+                (Some(a), Some(c)) => fin(a.max(c)),
+                _ => None,
+            };
+            m.feasible = m.omega_j_m3.is_some() && m.max_radius_mm.is_some_and(|r| r <= limit_mm * (1.0 + 1e-12));
+        }
+        let pb = [Some(pc), p_radius_limit(&f.steps, limit_mm), p_radius_limit(&b.steps, limit_mm)].into_iter().flatten().fold(f64::INFINITY, f64::min);
+        if pb.is_finite() && pb > 0.0 {
+            if let Some(o) = omega_at_pressure(&f.steps, &b.steps, pb) {
+                m.omega_balloon_j_m3 = fin(o.omega_j_m3);
+                m.p_balloon_kpa = fin(pb);
+            }
+        }
+    }
+    m
+}
+
+/// The two modes: (name, free-like scene, blocked-like scene).
+const MODES: [(&str, SceneKind, SceneKind); 2] =
+    [("combined", SceneKind::Free, SceneKind::Blocked), ("pure-twist", SceneKind::PureTwist, SceneKind::PureTwistBlocked)];
+
+fn scene_summary(r: &SceneResult) -> SceneSummary {
+    SceneSummary {
+        status: r.status.clone(),
+        cause: r.cause.replace('\n', " "),
+        p_reached_kpa: p_reached(&r.steps),
+        steps: r.steps.len(),
+        dofs: r.dofs,
+        newton_iterations: r.newton_iterations,
+        wall_time_s: r.wall_time_s,
+    }
+}
+
+fn empty_row(index: u64, design: &Design, p_max: f64) -> Row {
+    Row {
+        id: design_id(index, design),
+        index,
+        design: design.values.clone(),
+        status: String::new(),
+        cause: String::new(),
+        mode: None,
+        primary: ModeSummary::default(),
+        modes: BTreeMap::new(),
+        scenes: BTreeMap::new(),
+        p_max_kpa: p_max,
+        wall_time_s: 0.0,
+    }
+}
+
+/// Run one design's scenes (one after the other) ramped to `p_max` (or to the ballooning limit
+/// or failure) and summarise them. Never fails: problems are the row's status.
+pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_max: f64) -> Row {
+    let t0 = Instant::now();
+    let mut row = empty_row(index, design, p_max);
+    let geom = match ActuatorGeometry::new(design, range) {
+        Ok(g) => g,
+        Err(e) => {
+            row.status = "invalid-geometry".into();
+            row.cause = e.to_string().replace('\n', " ");
+            row.wall_time_s = t0.elapsed().as_secs_f64();
+            return row;
+        }
+    };
+    let plan = LoadPlan::Ramp(p_max);
+    let mut results: Vec<SceneResult> = Vec::new();
+    let mut errors = Vec::new();
+    for &kind in &v.scenes {
+        match run_pressure(&geom, opts, kind, &plan.targets()) {
+            Ok(mut r) => {
+                select_steps(&mut r, &plan);
+                results.push(r);
+            }
+            Err(e) => errors.push(format!("{}: {}", kind.name(), e.to_string().replace('\n', " "))),
+        }
+    }
+    row.scenes = results.iter().map(|r| (r.scene.clone(), scene_summary(r))).collect();
+    let find = |k: SceneKind| results.iter().find(|r| r.scene == k.name());
+    for (name, fk, bk) in MODES {
+        if v.scenes.contains(&fk) || v.scenes.contains(&bk) {
+            row.modes.insert(name.to_string(), mode_summary(find(fk), find(bk), opts.ballooning_limit_mm));
+            if row.mode.is_none() {
+                row.mode = Some(name.to_string());
+            }
+        }
+    }
+    if let Some(m) = row.mode.as_ref().and_then(|m| row.modes.get(m)) {
+        row.primary = m.clone();
+    }
+    let ends: Vec<String> = results
+        .iter()
+        .filter(|r| r.status != "completed")
+        .map(|r| format!("{}: {} ({})", r.scene, r.status, r.cause.replace('\n', " ")))
+        .collect();
+    if !errors.is_empty() {
+        row.status = "model-error".into();
+        row.cause = errors.into_iter().chain(ends).collect::<Vec<_>>().join("; ");
+    } else {
+        let pair = row.mode.as_ref().and_then(|m| MODES.iter().find(|x| x.0 == m)).is_some_and(|(_, f, b)| v.scenes.contains(f) && v.scenes.contains(b));
+        row.status = if pair && row.primary.omega_j_m3.is_none() { "no-common-pressure".into() } else { "ok".into() };
+        row.cause = if ends.is_empty() { format!("all scenes reached p_max = {p_max} kPa") } else { ends.join("; ") };
+    }
+    row.wall_time_s = t0.elapsed().as_secs_f64();
+    row
+}
+
+/// [`evaluate_design`] with panics turned into rows with status `error`.
+pub fn evaluate_design_guarded(index: u64, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_max: f64) -> Row {
+    let t0 = Instant::now();
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| evaluate_design(index, design, range, v, opts, p_max))) {
+        Ok(r) => r,
+        Err(e) => {
+            let msg = e.downcast_ref::<String>().cloned().or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_else(|| "unknown panic".into());
+            let mut row = empty_row(index, design, p_max);
+            row.status = "error".into();
+            row.cause = format!("the evaluation panicked: {}", msg.replace('\n', " "));
+            row.wall_time_s = t0.elapsed().as_secs_f64();
+            row
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// Rows file
+
+/// Rows read from a results file.
+pub struct RowsRead {
+    pub rows: Vec<Row>,
+    /// bytes up to the end of the last complete line (what follows is a torn tail)
+    pub valid_len: u64,
+    /// the file ends with a complete row whose newline is missing (a write cut just before it)
+    pub missing_newline: bool,
+    /// lines dropped (torn tail, unparseable, duplicate id)
+    pub dropped: usize,
+}
+
+/// Read `results.jsonl`. A last line without its newline (a write cut by a kill) is dropped
+/// unless it is a complete row; unparseable lines and repeated ids (the first occurrence is
+/// kept) are skipped.
+pub fn read_rows(path: &Path) -> Result<RowsRead> {
+    let mut bytes = Vec::new();
+    match std::fs::File::open(path) {
+        Ok(mut f) => {
+            f.read_to_end(&mut bytes).with_context(|| format!("cannot read {}", path.display()))?;
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(RowsRead { rows: vec![], valid_len: 0, missing_newline: false, dropped: 0 }),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    }
+    let complete = bytes.iter().rposition(|&b| b == b'\n').map(|p| p + 1).unwrap_or(0);
+    let mut rows = Vec::new();
+    let mut seen = BTreeSet::new();
+    let mut dropped = 0;
+    let mut take = |line: &[u8], rows: &mut Vec<Row>| -> bool {
+        match serde_json::from_slice::<Row>(line) {
+            Ok(r) if seen.insert(r.id.clone()) => {
+                rows.push(r);
+                true
+            }
+            _ => false,
+        }
+    };
+    for line in bytes[..complete].split(|&b| b == b'\n') {
+        if line.iter().all(|b| b.is_ascii_whitespace()) {
+            continue;
+        }
+        if !take(line, &mut rows) {
+            dropped += 1;
+        }
+    }
+    let tail = &bytes[complete..];
+    let mut missing_newline = false;
+    let mut valid_len = complete as u64;
+    if !tail.iter().all(|b| b.is_ascii_whitespace()) {
+        if take(tail, &mut rows) {
+            missing_newline = true;
+            valid_len = bytes.len() as u64;
+        } else {
+            dropped += 1;
+        }
+    }
+    Ok(RowsRead { rows, valid_len, missing_newline, dropped })
+}
+
+/// Appends rows: one `write` of the whole line, then flush and fsync, under a lock.
+pub struct RowWriter {
+    file: Mutex<std::fs::File>,
+}
+
+impl RowWriter {
+    /// Open for appending after cutting the file to `read.valid_len` (drops a torn last line)
+    /// and completing a row whose newline is missing.
+    pub fn open(path: &Path, read: &RowsRead) -> Result<RowWriter> {
+        let valid_len = read.valid_len;
+        let mut f = std::fs::OpenOptions::new().create(true).read(true).write(true).truncate(false).open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let len = f.metadata()?.len();
+        if len > valid_len {
+            f.set_len(valid_len)?;
+            f.sync_all()?;
+        }
+        f.seek(std::io::SeekFrom::End(0))?;
+        if read.missing_newline {
+            f.write_all(b"\n")?;
+            f.sync_data()?;
+        }
+        Ok(RowWriter { file: Mutex::new(f) })
+    }
+
+    pub fn append(&self, row: &Row) -> Result<()> {
+        let mut line = serde_json::to_string(row)?;
+        line.push('\n');
+        let mut f = self.file.lock().map_err(|_| anyhow!("row writer lock poisoned"))?;
+        f.write_all(line.as_bytes())?;
+        f.flush()?;
+        f.sync_data()?;
+        Ok(())
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// Running
+
+/// What a run did.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    pub n_designs: u64,
+    pub n_designs_shard: u64,
+    pub already_done: usize,
+    pub computed: usize,
+    pub dropped_lines: usize,
+    pub wall_time_s: f64,
+    pub threads: usize,
+    pub files: Vec<PathBuf>,
+}
+
+/// Options of [`run_sweep`].
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// worker threads (0: rayon's default, the number of cores)
+    pub threads: usize,
+    /// show a progress bar (only drawn when stderr is a terminal)
+    pub progress: bool,
+    /// write results.csv, summary.json and maps at the end
+    pub outputs: bool,
+}
+
+/// Run (or resume) a sweep into `out`. `log` receives progress lines.
+pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(&str) + Sync) -> Result<RunReport> {
+    let t0 = Instant::now();
+    let v = cfg.problem.validate()?;
+    let mut sopts = cfg.problem.scene_options(&v);
+    sopts.keep_fields = false;
+    let manifest = cfg.manifest()?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create output directory {}", out.display()))?;
+    match Manifest::read(out)? {
+        Some(old) => {
+            if let Some(why) = old.mismatch(&manifest) {
+                bail!("{} holds a different sweep ({why}); use a new --out directory or the original command", out.display());
+            }
+        }
+        None => {
+            let results = out.join(RESULTS);
+            if results.exists() && std::fs::metadata(&results).map(|m| m.len() > 0).unwrap_or(false) {
+                bail!("{} has {RESULTS} but no {MANIFEST}: not resuming into it", out.display());
+            }
+            manifest.write(out)?;
+        }
+    }
+    let results = out.join(RESULTS);
+    let read = read_rows(&results)?;
+    if read.dropped > 0 {
+        log(&format!("dropped {} incomplete or unreadable line(s) of {}", read.dropped, results.display()));
+    }
+    let done: BTreeSet<String> = read.rows.iter().map(|r| r.id.clone()).collect();
+    let n = cfg.grid.len();
+    let pending: Vec<(u64, Design)> = (0..n)
+        .filter(|i| cfg.shard.contains(*i))
+        .map(|i| (i, cfg.grid.design(i)))
+        .filter(|(i, d)| !done.contains(&design_id(*i, d)))
+        .collect();
+    let shard_size = cfg.shard.size(n);
+    log(&format!(
+        "grid {}: {n} designs ({}); shard {}/{}: {shard_size}; done {}; to run {} at {} (p_max {} kPa, scenes {})",
+        cfg.grid.name,
+        cfg.grid.shape(),
+        cfg.shard.index,
+        cfg.shard.count,
+        shard_size as usize - pending.len(),
+        pending.len(),
+        manifest.fidelity,
+        cfg.p_max_kpa,
+        v.scenes.iter().map(|k| k.name()).collect::<Vec<_>>().join("+"),
+    ));
+    let writer = RowWriter::open(&results, &read)?;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(opts.threads).build().map_err(|e| anyhow!("cannot start worker threads: {e}"))?;
+    let threads = pool.current_num_threads();
+    let pb = if opts.progress && std::io::stderr().is_terminal() {
+        let pb = indicatif::ProgressBar::with_draw_target(Some(pending.len() as u64), indicatif::ProgressDrawTarget::stderr());
+        if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} designs, {per_sec}, ETA {eta_precise} {msg}") {
+            pb.set_style(style.progress_chars("=> "));
+        }
+        pb
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let write_error: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    pool.install(|| {
+        use rayon::prelude::*;
+        pending.par_iter().for_each(|(i, d)| {
+            if write_error.lock().map(|e| e.is_some()).unwrap_or(true) {
+                return;
+            }
+            let row = evaluate_design_guarded(*i, d, cfg.grid.range, &v, &sopts, cfg.p_max_kpa);
+            if let Err(e) = writer.append(&row) {
+                if let Ok(mut w) = write_error.lock() {
+                    w.get_or_insert(e);
+                }
+            }
+            pb.set_message(format!("last: #{} {} {:.1} s", row.index, row.status, row.wall_time_s));
+            pb.inc(1);
+        });
+    });
+    pb.finish_and_clear();
+    if let Some(e) = write_error.into_inner().ok().flatten() {
+        return Err(e.context(format!("cannot append to {}", results.display())));
+    }
+    let mut files = vec![out.join(MANIFEST), results.clone()];
+    if opts.outputs {
+        let rows = read_rows(&results)?.rows;
+        files.extend(write_outputs(out, &manifest, &rows, Some(t0.elapsed().as_secs_f64()), Some(pending.len()), threads)?);
+    }
+    Ok(RunReport {
+        n_designs: n,
+        n_designs_shard: shard_size,
+        already_done: done.len(),
+        computed: pending.len(),
+        dropped_lines: read.dropped,
+        wall_time_s: t0.elapsed().as_secs_f64(),
+        threads,
+        files,
+    })
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn opt(x: Option<f64>) -> String {
+    x.map(|v| format!("{v}")).unwrap_or_default()
+}
+
+/// `results.csv`: one line per row sorted by index (design parameters by name, then the
+/// primary mode's values; empty = null).
+pub fn write_csv(path: &Path, grid: &Grid, rows: &[Row]) -> Result<()> {
+    let names: Vec<&str> = grid.axes.iter().map(|a| a.name.as_str()).collect();
+    let mut s = format!(
+        "index,{},status,mode,feasible,theta_max_deg,p_theta_max_kPa,tau_max_Nm,p_tau_max_kPa,omega_J_m3,p_omega_kPa,theta_omega_deg,tau_omega_Nm,omega_balloon_J_m3,p_balloon_kPa,max_radius_mm,max_radius_reached_mm,wall_time_s,cause\n",
+        names.join(",")
+    );
+    let mut sorted: Vec<&Row> = rows.iter().collect();
+    sorted.sort_by_key(|r| r.index);
+    for r in sorted {
+        let m = &r.primary;
+        let design: Vec<String> = names.iter().map(|n| opt(r.design.get(*n).copied())).collect();
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            r.index,
+            design.join(","),
+            r.status,
+            r.mode.as_deref().unwrap_or(""),
+            m.feasible,
+            opt(m.theta_max_deg),
+            opt(m.p_theta_max_kpa),
+            opt(m.tau_max_nm),
+            opt(m.p_tau_max_kpa),
+            opt(m.omega_j_m3),
+            opt(m.p_omega_kpa),
+            opt(m.theta_omega_deg),
+            opt(m.tau_omega_nm),
+            opt(m.omega_balloon_j_m3),
+            opt(m.p_balloon_kpa),
+            opt(m.max_radius_mm),
+            opt(m.max_radius_reached_mm),
+            r.wall_time_s,
+            csv_field(&r.cause)
+        ));
+    }
+    write_atomic(path, &s)
+}
+
+/// The best feasible row by Ω (primary mode).
+pub fn best_row(rows: &[Row]) -> Option<&Row> {
+    rows.iter().filter(|r| r.status == "ok" && r.primary.feasible && r.primary.omega_j_m3.is_some()).max_by(|a, b| {
+        a.primary.omega_j_m3.unwrap_or(f64::NEG_INFINITY).total_cmp(&b.primary.omega_j_m3.unwrap_or(f64::NEG_INFINITY)).then(b.index.cmp(&a.index))
+    })
+}
+
+/// `summary.json`, `results.csv` and the maps of a sweep directory.
+pub fn write_outputs(out: &Path, manifest: &Manifest, rows: &[Row], wall_time_s: Option<f64>, computed: Option<usize>, threads: usize) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let csv = out.join("results.csv");
+    write_csv(&csv, &manifest.grid, rows)?;
+    files.push(csv);
+    let mut by_status: BTreeMap<String, usize> = BTreeMap::new();
+    for r in rows {
+        *by_status.entry(r.status.clone()).or_default() += 1;
+    }
+    let feasible = rows.iter().filter(|r| r.primary.feasible).count();
+    let cpu: f64 = rows.iter().map(|r| r.wall_time_s).sum();
+    let best = best_row(rows);
+    let best_by = |f: &dyn Fn(&Row) -> Option<f64>| {
+        rows.iter().filter(|r| r.primary.feasible).filter_map(|r| f(r).map(|x| (x, r))).max_by(|a, b| a.0.abs().total_cmp(&b.0.abs())).map(|(x, r)| json!({"value": x, "id": r.id, "design": r.design}))
+    };
+    let summary = json!({
+        "format": FORMAT,
+        "grid": manifest.grid.name,
+        "grid_shape": manifest.grid.shape(),
+        "n_designs": manifest.n_designs,
+        "shard": manifest.shard,
+        "n_designs_shard": manifest.n_designs_shard,
+        "rows": rows.len(),
+        "complete": rows.len() as u64 == manifest.n_designs_shard,
+        "by_status": by_status,
+        "feasible": feasible,
+        "fidelity": manifest.fidelity,
+        "sweep_hash": manifest.sweep_hash,
+        "sum_of_design_times_s": cpu,
+        "mean_design_time_s": if rows.is_empty() { Value::Null } else { json!(cpu / rows.len() as f64) },
+        "last_run": {"wall_time_s": wall_time_s, "designs_computed": computed, "threads": threads,
+                     "designs_per_s": match (wall_time_s, computed) { (Some(t), Some(c)) if t > 0.0 && c > 0 => json!(c as f64 / t), _ => Value::Null }},
+        "best_omega": best.map(|r| json!({"id": r.id, "design": r.design, "mode": r.mode, "values": r.primary})),
+        "best_feasible_abs_theta": best_by(&|r: &Row| r.primary.theta_max_deg),
+        "best_feasible_abs_tau": best_by(&|r: &Row| r.primary.tau_max_nm),
+    });
+    let sp = out.join("summary.json");
+    write_atomic(&sp, &(serde_json::to_string_pretty(&summary)? + "\n"))?;
+    files.push(sp);
+    files.extend(maps::draw_maps(out, &manifest.grid, rows)?);
+    Ok(files)
+}
+
+/// Join the directories of a sweep's shards into `out` (itself a resumable, unsharded sweep
+/// directory). All must hold the same sweep (grid, problem, fidelity). Returns the merged rows
+/// count and the shards missing.
+pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(usize, Vec<u64>, Vec<PathBuf>)> {
+    if dirs.is_empty() {
+        bail!("sweep-merge: give at least one shard directory");
+    }
+    let mut first: Option<Manifest> = None;
+    let mut shards = BTreeSet::new();
+    let mut rows: BTreeMap<String, Row> = BTreeMap::new();
+    for d in dirs {
+        let m = Manifest::read(d)?.ok_or_else(|| anyhow!("{}: no {MANIFEST} (not a sweep directory)", d.display()))?;
+        if let Some(f) = &first {
+            if f.sweep_hash != m.sweep_hash || f.grid != m.grid || f.problem != m.problem || f.fidelity != m.fidelity {
+                let mut mm = m.clone();
+                mm.shard = f.shard;
+                let why = f.mismatch(&mm).unwrap_or_else(|| "sweep hash differs".into());
+                bail!("{} holds a different sweep than {} ({why})", d.display(), dirs[0].display());
+            }
+            if f.shard.count != m.shard.count {
+                bail!("{}: shard count {} differs from {} in {}", d.display(), m.shard.count, f.shard.count, dirs[0].display());
+            }
+        } else {
+            first = Some(m.clone());
+        }
+        if !shards.insert(m.shard.index) {
+            bail!("{}: shard {}/{} given twice", d.display(), m.shard.index, m.shard.count);
+        }
+        for r in read_rows(&d.join(RESULTS))?.rows {
+            rows.entry(r.id.clone()).or_insert(r);
+        }
+    }
+    let f = first.expect("at least one directory");
+    let mut manifest = f.clone();
+    manifest.shard = Shard::default();
+    manifest.n_designs_shard = manifest.n_designs;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    if let Some(old) = Manifest::read(out)? {
+        if let Some(why) = old.mismatch(&manifest) {
+            bail!("{} holds a different sweep ({why})", out.display());
+        }
+        for r in read_rows(&out.join(RESULTS))?.rows {
+            rows.entry(r.id.clone()).or_insert(r);
+        }
+    }
+    manifest.write(out)?;
+    let mut list: Vec<Row> = rows.into_values().collect();
+    list.sort_by_key(|r| r.index);
+    let mut text = String::new();
+    for r in &list {
+        text.push_str(&serde_json::to_string(r)?);
+        text.push('\n');
+    }
+    write_atomic(&out.join(RESULTS), &text)?;
+    let missing: Vec<u64> = (0..f.shard.count).filter(|i| !shards.contains(i)).collect();
+    let mut files = vec![out.join(MANIFEST), out.join(RESULTS)];
+    files.extend(write_outputs(out, &manifest, &list, None, None, 0)?);
+    Ok((list.len(), missing, files))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table1_grid_has_the_letters_axes() {
+        let g = Grid::table1();
+        assert_eq!(g.len(), 39_864);
+        assert_eq!(g.shape(), "r_mm 24 × l_mm 11 × alpha_deg 151");
+        let r = &g.axes[0].values;
+        assert_eq!(r[0], 5.0 * 3f64.sqrt());
+        assert!((r[9] - 13.160254037844386).abs() < 1e-12, "Fig. 5's r = 13.2 is 5√3 + 9·0.5");
+        assert!((r[22] - 19.660254037844386).abs() < 1e-12);
+        assert_eq!(r[23], 20.0);
+        assert_eq!(g.axes[1].values, (10..=20).map(f64::from).collect::<Vec<_>>());
+        assert_eq!(g.axes[2].values.first(), Some(&60.0));
+        assert_eq!(g.axes[2].values.last(), Some(&360.0));
+        // last axis fastest
+        let d = g.design(0);
+        assert_eq!((d.r_mm(), d.l_mm(), d.alpha_deg()), (r[0], 10.0, 60.0));
+        let d = g.design(151 + 3);
+        assert_eq!((d.r_mm(), d.l_mm(), d.alpha_deg()), (r[0], 11.0, 66.0));
+        let d = g.design(39_863);
+        assert_eq!((d.r_mm(), d.l_mm(), d.alpha_deg()), (20.0, 20.0, 360.0));
+        let e = g.every(4).unwrap();
+        assert_eq!(e.len(), 6 * 3 * 38);
+        assert_eq!(e.name, "table1/every=4");
+        assert!(g.every(0).is_err());
+        // every Table-I design is a valid geometry at the corners
+        for i in [0, 150, 39_713, 39_863] {
+            ActuatorGeometry::new(&g.design(i), RangePolicy::TableI).unwrap();
+        }
+    }
+
+    #[test]
+    fn stepped_values_include_the_end() {
+        assert_eq!(stepped_values("x", 10.0, 20.0, 5.0).unwrap(), vec![10.0, 15.0, 20.0]);
+        assert_eq!(stepped_values("x", 60.0, 360.0, 100.0).unwrap(), vec![60.0, 160.0, 260.0, 360.0]);
+        assert_eq!(stepped_values("x", 0.0, 1.0, 0.4).unwrap(), vec![0.0, 0.4, 0.8, 1.0]);
+        assert_eq!(stepped_values("x", 0.0, 0.3, 0.1).unwrap().len(), 4);
+        assert!(stepped_values("x", 1.0, 0.0, 0.1).unwrap_err().to_string().contains("sweep.x"));
+        assert!(stepped_values("x", 0.0, 1.0, 0.0).is_err());
+        assert!(stepped_values("x", 0.0, f64::NAN, 1.0).is_err());
+    }
+
+    fn section(text: &str) -> Result<Grid> {
+        grid_from_section(&toml::from_str::<toml::Table>(text).unwrap())
+    }
+
+    #[test]
+    fn sweep_sections() {
+        let g = section("r_mm = [10.0]\nl_mm = {from = 10, to = 20, step = 5}\nalpha_deg = [60, 90]\n").unwrap();
+        assert_eq!(g.name, "custom");
+        assert_eq!(g.len(), 6);
+        assert_eq!(g.axes.iter().map(|a| a.name.as_str()).collect::<Vec<_>>(), vec!["r_mm", "l_mm", "alpha_deg"]);
+        let g = section("alpha_deg = [60, 90, 120]\nr_mm = [10]\nl_mm = [12]\nevery = 2\n").unwrap();
+        assert_eq!(g.axes[2].values, vec![60.0, 120.0]);
+        assert_eq!(g.name, "custom/every=2");
+        assert_eq!(section("grid = \"every=10\"\n").unwrap().len(), 3 * 2 * 16);
+        for (text, needle) in [
+            ("r_mm = [10]\nl_mm = [12]\n", "alpha_deg"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = [60]\nbogus = 1\n", "sweep.bogus"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = {from = 60, to = 90}\n", "step"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = [60, 60]\n", "twice"),
+            ("r_mm = [10]\nl_mm = [12]\nalpha_deg = \"x\"\n", "sweep.alpha_deg"),
+            ("grid = \"every=0\"\n", "every"),
+            ("grid = \"table2\"\n", "sweep.grid"),
+            ("grid = \"table1\"\nr_mm = [10]\n", "not both"),
+            ("", "no grid"),
+        ] {
+            let e = section(text).unwrap_err().to_string();
+            assert!(e.contains(needle), "{text:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn shards_partition_the_grid() {
+        for s in ["3/2", "2/2", "1/0", "a/2", "1", "-1/2"] {
+            assert!(Shard::parse(s).is_err(), "{s}");
+        }
+        let n = 1001;
+        let shards: Vec<Shard> = (0..7).map(|i| Shard::parse(&format!("{i}/7")).unwrap()).collect();
+        assert_eq!(shards.iter().map(|s| s.size(n)).sum::<u64>(), n);
+        for i in 0..n {
+            assert_eq!(shards.iter().filter(|s| s.contains(i)).count(), 1);
+        }
+        for s in &shards {
+            assert_eq!(s.size(n), (0..n).filter(|&i| s.contains(i)).count() as u64);
+        }
+        assert_eq!(Shard::parse("9/10").unwrap().size(5), 0);
+    }
+
+    fn rec(p: f64, theta: f64, tau: f64, radius: f64) -> StepRecord {
+        StepRecord { p_kpa: p, theta_deg: theta, axial_mm: 0.0, tau_nm: tau, max_radius_mm: radius, cavity_volume_mm3: 1.0, min_det_f: 1.0, newton_iterations: 1 }
+    }
+
+    fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
+        SceneResult { scene: name.into(), status: "limit-point".into(), cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, wall_time_s: 0.0, fields: None }
+    }
+
+    #[test]
+    fn mode_summary_follows_the_letters_rule_and_the_ballooning_limit() {
+        // free reaches 60 kPa, blocked 50: Ω at 50 kPa; radius crosses 28.75 at 40 + 10·(28.75−26)/(30−26) kPa
+        let free = scene("free", vec![rec(0.0, 0.0, 0.0, 20.0), rec(20.0, -10.0, 0.0, 22.0), rec(40.0, -20.0, 0.0, 26.0), rec(60.0, -25.0, 0.0, 32.0)]);
+        let blocked = scene("blocked", vec![rec(0.0, 0.0, 0.0, 20.0), rec(25.0, 0.0, -0.2, 21.0), rec(50.0, 0.0, -0.3, 30.0)]);
+        let m = mode_summary(Some(&free), Some(&blocked), 28.75);
+        assert_eq!(m.theta_max_deg, Some(-25.0));
+        assert_eq!(m.p_theta_max_kpa, Some(60.0));
+        assert_eq!(m.tau_max_nm, Some(-0.3));
+        assert_eq!(m.p_tau_max_kpa, Some(50.0));
+        assert_eq!(m.p_omega_kpa, Some(50.0));
+        assert!((m.theta_omega_deg.unwrap() + 22.5).abs() < 1e-12);
+        let o = crate::evaluate::omega_letter(&free.steps, &blocked.steps, true).unwrap();
+        assert_eq!(m.omega_j_m3, Some(o.omega_j_m3));
+        assert!((o.omega_j_m3 - crate::scene::energy_density(22.5, 0.3)).abs() < 1e-9);
+        // radius at 50 kPa: free 29, blocked 30 → infeasible
+        assert_eq!(m.max_radius_mm, Some(30.0));
+        assert!(!m.feasible);
+        assert_eq!(m.max_radius_reached_mm, Some(32.0));
+        // ballooning-limited: free crosses at 40 + 20·(2.75/6) = 49.1667; blocked at 25 + 25·(7.75/9) = 46.5278
+        let pb = 25.0 + 25.0 * (7.75 / 9.0);
+        assert!((m.p_balloon_kpa.unwrap() - pb).abs() < 1e-9, "{:?}", m.p_balloon_kpa);
+        let ob = crate::evaluate::omega_at_pressure(&free.steps, &blocked.steps, pb).unwrap();
+        assert_eq!(m.omega_balloon_j_m3, Some(ob.omega_j_m3));
+        // a free scene alone: twist only
+        let m = mode_summary(Some(&free), None, 28.75);
+        assert_eq!(m.theta_max_deg, Some(-25.0));
+        assert_eq!((m.omega_j_m3, m.feasible), (None, false));
+        // feasible when the limit is higher
+        assert!(mode_summary(Some(&free), Some(&blocked), 40.0).feasible);
+    }
+
+    fn row(index: u64) -> Row {
+        let d = Design::new(10.0, 12.0, 60.0 + index as f64);
+        let mut r = empty_row(index, &d, 20.0);
+        r.status = "ok".into();
+        r.primary.omega_j_m3 = Some(index as f64);
+        r
+    }
+
+    #[test]
+    fn rows_file_survives_torn_writes() {
+        let dir = std::env::temp_dir().join(format!("twistopt-sweep-rows-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(RESULTS);
+        let w = RowWriter::open(&p, &read_rows(&p).unwrap()).unwrap();
+        for i in 0..3 {
+            w.append(&row(i)).unwrap();
+        }
+        drop(w);
+        // a write cut mid-line
+        let full = serde_json::to_string(&row(3)).unwrap();
+        let mut f = std::fs::OpenOptions::new().append(true).open(&p).unwrap();
+        f.write_all(&full.as_bytes()[..full.len() / 2]).unwrap();
+        drop(f);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.dropped, r.missing_newline), (3, 1, false));
+        let w = RowWriter::open(&p, &r).unwrap();
+        w.append(&row(3)).unwrap();
+        drop(w);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.dropped), (4, 0));
+        assert_eq!(r.rows.iter().map(|x| x.index).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
+        assert_eq!(r.rows[3], row(3));
+        // a complete row whose newline was cut is kept and completed; a duplicate id is skipped
+        let mut f = std::fs::OpenOptions::new().append(true).open(&p).unwrap();
+        f.write_all(serde_json::to_string(&row(4)).unwrap().as_bytes()).unwrap();
+        drop(f);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.missing_newline), (5, true));
+        let w = RowWriter::open(&p, &r).unwrap();
+        w.append(&row(1)).unwrap();
+        drop(w);
+        let r = read_rows(&p).unwrap();
+        assert_eq!((r.rows.len(), r.dropped, r.missing_newline), (5, 1, false));
+        assert_eq!(std::fs::read_to_string(&p).unwrap().lines().count(), 6);
+        // NaN never reaches a row: absent values are null
+        let text = serde_json::to_string(&row(0)).unwrap();
+        assert!(text.contains("\"theta_max_deg\":null") && !text.contains("NaN"), "{text}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn invalid_designs_are_rows() {
+        let (problem, section) = problem_from_str(
+            "[load]\np_max_kPa = 10\n[fidelity]\nmesh = \"12x4x1\"\n[sweep]\nr_mm = [3.0]\nl_mm = [12]\nalpha_deg = [60]\n",
+            "t",
+            &[],
+        )
+        .unwrap();
+        let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap();
+        let v = cfg.problem.validate().unwrap();
+        let opts = cfg.problem.scene_options(&v);
+        let r = evaluate_design_guarded(0, &cfg.grid.design(0), cfg.grid.range, &v, &opts, cfg.p_max_kpa);
+        assert_eq!(r.status, "invalid-geometry");
+        assert!(r.cause.contains("r_mm = 3"), "{}", r.cause);
+        assert_eq!(r.id, "0:alpha_deg=60,l_mm=12,r_mm=3");
+        assert!(r.primary.omega_j_m3.is_none() && !r.primary.feasible);
+        // a list of target pressures is refused with a hint
+        let (problem, section) = problem_from_str("[load]\npressures_kPa = [10]\n[sweep]\ngrid = \"table1\"\n", "t", &[]).unwrap();
+        let e = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap_err().to_string();
+        assert!(e.contains("load.p_max_kPa"), "{e}");
+    }
+}

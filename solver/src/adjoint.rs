@@ -347,24 +347,7 @@ fn dual_state(model: &Model, q: &[f64], loads: &Loads, dir: &Direction, dq: Opti
 
 /// Map a full nodal vector g (3 per node, ∂J/∂u) to the reduced unknowns: (∂u/∂q)ᵀ g.
 pub fn reduce(model: &Model, q: &[f64], loads: &Loads, g: &[f64]) -> Vec<f64> {
-    let x0 = &model.mesh.nodes;
-    let kin = model.dofs.body_kinematics(q, &loads.presc);
-    let mut out = vec![0.0; model.n_reduced()];
-    let mut row = Vec::new();
-    for n in 0..x0.len() {
-        for c in 0..3 {
-            let v = g[3 * n + c];
-            if v == 0.0 {
-                continue;
-            }
-            row.clear();
-            model.dofs.row(x0, &kin, n, c, &mut row);
-            for &(k, cf) in &row {
-                out[k as usize] += cf * v;
-            }
-        }
-    }
-    out
+    model.reduce_full(&model.dofs.body_kinematics(q, &loads.presc), g)
 }
 
 /// ∂J/∂q of a functional at a state (f64).

@@ -214,7 +214,6 @@ impl Model {
         // element loop: parallel per chunk, scatter serially in element order (deterministic)
         let chunks: Vec<(usize, usize)> = (0..ne).step_by(self.chunk).map(|s| (s, (s + self.chunk).min(ne))).collect();
         let wave = 4 * rayon::current_num_threads().max(1);
-        let mut rowbuf = Vec::with_capacity(16);
         let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); nd];
         for wave_chunks in chunks.chunks(wave) {
             let results: Vec<Result<Vec<(f64, f64, Vec<f64>, Vec<f64>)>, ElementError>> = wave_chunks
@@ -316,35 +315,8 @@ impl Model {
             }
         }
         // reduce the residual (and the volume gradient)
-        let nr = self.n_reduced();
-        let mut r = vec![0.0; nr];
-        let mut dvol = if gvol_full.is_empty() { Vec::new() } else { vec![0.0; nr] };
-        for n in 0..gvol_full.len() / 3 {
-            for c in 0..3 {
-                let v = gvol_full[3 * n + c];
-                if v == 0.0 {
-                    continue;
-                }
-                rowbuf.clear();
-                self.dofs.row(x0, &kin, n, c, &mut rowbuf);
-                for &(k, cf) in &rowbuf {
-                    dvol[k as usize] += cf * v;
-                }
-            }
-        }
-        for n in 0..x0.len() {
-            for c in 0..3 {
-                let v = r_full[3 * n + c];
-                if v == 0.0 {
-                    continue;
-                }
-                rowbuf.clear();
-                self.dofs.row(x0, &kin, n, c, &mut rowbuf);
-                for &(k, cf) in &rowbuf {
-                    r[k as usize] += cf * v;
-                }
-            }
-        }
+        let mut r = self.reduce_full(&kin, &r_full);
+        let dvol = if gvol_full.is_empty() { Vec::new() } else { self.reduce_full(&kin, &gvol_full) };
         // dead forces on rigid-body reference points
         for (b, fb) in loads.body_forces.iter().enumerate() {
             for k in 0..3 {
@@ -395,6 +367,28 @@ impl Model {
             u,
             kin,
         })
+    }
+
+    /// (∂u/∂q)ᵀ v for a full nodal vector v (3 per node) at the kinematics `kin`: reduces a
+    /// nodal force (or any ∂J/∂u) to the reduced unknowns.
+    pub fn reduce_full(&self, kin: &[BodyKin], v: &[f64]) -> Vec<f64> {
+        let x0 = &self.mesh.nodes;
+        let mut out = vec![0.0; self.n_reduced()];
+        let mut row = Vec::with_capacity(16);
+        for n in 0..x0.len() {
+            for c in 0..3 {
+                let vc = v[3 * n + c];
+                if vc == 0.0 {
+                    continue;
+                }
+                row.clear();
+                self.dofs.row(x0, kin, n, c, &mut row);
+                for &(k, cf) in &row {
+                    out[k as usize] += cf * vc;
+                }
+            }
+        }
+        out
     }
 
     fn fill_rows(&self, nodes: &[usize], kin: &[BodyKin], rows: &mut Vec<Vec<(u32, f64)>>) {

@@ -4,7 +4,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod crosscheck;
 pub mod evaluate;
+pub mod export;
 pub mod geometry;
 
 /// twistopt — design optimisation of soft twisting pneumatic actuators.
@@ -31,6 +33,11 @@ pub enum Command {
     /// density and torque-rotation; write result.json, CSV tables, PNG/SVG plots and ParaView
     /// series to an output directory.
     Evaluate(evaluate::EvaluateArgs),
+    /// Write a complete, runnable CalculiX deck (INP) of one scene of a problem file.
+    Export(export::ExportArgs),
+    /// Run twistopt and CalculiX (ccx) on the same scenes and mesh; write both side by side with
+    /// relative differences, wall times and DOF counts to DIR/crosscheck.json.
+    Crosscheck(crosscheck::CrosscheckArgs),
 }
 
 /// Run a parsed command line.
@@ -38,5 +45,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Geometry(args) => geometry::run(&args),
         Command::Evaluate(args) => evaluate::run(&args),
+        Command::Export(args) => export::run(&args),
+        Command::Crosscheck(args) => crosscheck::run(&args),
     }
 }

@@ -47,10 +47,47 @@ fn row(scene: SceneKind, t: &StepRecord, c: &CcxState) -> Value {
     })
 }
 
+/// Which element twistopt uses in a cross-check.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TwistoptElement {
+    /// the problem's element (Q2/P1 Hex27): the production model against ccx's element
+    Standard,
+    /// the ccx element's own discretisation ([`super::CcxElement::matched_formulation`]): the
+    /// same discrete problem solved by two independent codes
+    Matched,
+}
+
+impl TwistoptElement {
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "standard" => Ok(TwistoptElement::Standard),
+            "matched" => Ok(TwistoptElement::Matched),
+            _ => anyhow::bail!("unknown twistopt element '{s}' (expected standard or matched)"),
+        }
+    }
+}
+
 /// Run one scene with both codes. ccx runs in `dir/<scene>/` with `threads` OpenMP threads.
-pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts: &DeckOptions, ccx: &str, dir: &Path, threads: usize) -> Result<SceneCheck> {
+#[allow(clippy::too_many_arguments)]
+pub fn check_scene(
+    problem: &Problem,
+    v: &Validated,
+    scene: SceneKind,
+    deck_opts: &DeckOptions,
+    twistopt_element: TwistoptElement,
+    ccx: &str,
+    dir: &Path,
+    threads: usize,
+) -> Result<SceneCheck> {
     let mut opts = problem.scene_options(v);
     opts.keep_fields = false;
+    if twistopt_element == TwistoptElement::Matched {
+        opts.formulation = deck_opts
+            .element
+            .matched_formulation()
+            .ok_or_else(|| anyhow::anyhow!("twistopt has no formulation matching {} (use C3D20R or C3D20)", deck_opts.element.name()))?;
+    }
     let targets = v.load.targets();
     let mut tw = match run_pressure(&v.geometry, &opts, scene, &targets) {
         Ok(r) => r,
@@ -83,7 +120,15 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
 
 /// Run the scenes with both codes and write `out/crosscheck.json`; returns its content.
 /// `log` receives progress and the side-by-side table.
-pub fn crosscheck(problem: &Problem, scenes: &[SceneKind], deck_opts: &DeckOptions, ccx: &str, out: &Path, log: impl Fn(&str)) -> Result<Value> {
+pub fn crosscheck(
+    problem: &Problem,
+    scenes: &[SceneKind],
+    deck_opts: &DeckOptions,
+    twistopt_element: TwistoptElement,
+    ccx: &str,
+    out: &Path,
+    log: impl Fn(&str),
+) -> Result<Value> {
     let v = problem.validate()?;
     let version = ccx_version(ccx)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create output directory {}", out.display()))?;
@@ -91,7 +136,7 @@ pub fn crosscheck(problem: &Problem, scenes: &[SceneKind], deck_opts: &DeckOptio
     let mut scenes_json = serde_json::Map::new();
     for &scene in scenes {
         log(&format!("scene {}: twistopt, then ccx ({}) ...", scene.name(), deck_opts.element.name()));
-        let c = check_scene(problem, &v, scene, deck_opts, ccx, out, threads)?;
+        let c = check_scene(problem, &v, scene, deck_opts, twistopt_element, ccx, out, threads)?;
         log(&format!(
             "scene {}: twistopt {} in {:.1} s ({} dofs, {} Newton iterations); ccx {} in {:.1} s ({} equations, {} increments, {} iterations)",
             scene.name(),
@@ -148,12 +193,18 @@ pub fn crosscheck(problem: &Problem, scenes: &[SceneKind], deck_opts: &DeckOptio
             }),
         );
     }
-    let opts = problem.scene_options(&v);
+    let mut opts = problem.scene_options(&v);
+    if twistopt_element == TwistoptElement::Matched {
+        if let Some(f) = deck_opts.element.matched_formulation() {
+            opts.formulation = f;
+        }
+    }
     let result = json!({
         "problem": problem,
         "mesh": v.mesh.size_string(),
         "twistopt": {
             "model": if opts.sector { "120° sector with cyclic symmetry" } else { "full 360°" },
+            "element": twistopt_element,
             "formulation": format!("{:?}", opts.formulation),
             "threads": threads,
         },

@@ -64,7 +64,18 @@ impl CcxElement {
             CcxElement::C3D8 => "C3D8",
         }
     }
-    fn kind(self) -> ElementKind {
+    /// twistopt's formulation with the same discretisation as this ccx element: the same nodes,
+    /// pure displacement (no pressure projection), the same Gauss rule (C3D20R: 2×2×2; C3D20:
+    /// 3×3×3). None for C3D8I/C3D8, whose enhanced/B-bar forms twistopt does not have.
+    pub fn matched_formulation(self) -> Option<twistopt_solver::element::Formulation> {
+        use twistopt_solver::element::{Formulation, PressureSpace};
+        match self {
+            CcxElement::C3D20R => Some(Formulation { kind: ElementKind::Hex20, pressure: PressureSpace::None, ngauss: 2 }),
+            CcxElement::C3D20 => Some(Formulation { kind: ElementKind::Hex20, pressure: PressureSpace::None, ngauss: 3 }),
+            CcxElement::C3D8I | CcxElement::C3D8 => None,
+        }
+    }
+    pub fn kind(self) -> ElementKind {
         match self {
             CcxElement::C3D20R | CcxElement::C3D20 => ElementKind::Hex20,
             CcxElement::C3D8I | CcxElement::C3D8 => ElementKind::Hex8,

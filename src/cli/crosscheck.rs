@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{anyhow, Result};
 use clap::Args;
 
-use crate::calculix::compare::crosscheck;
+use crate::calculix::compare::{crosscheck, TwistoptElement};
 use crate::calculix::{ccx_command, CcxElement, DeckOptions};
 use crate::problem::Problem;
 use crate::scene::SceneKind;
@@ -24,6 +24,10 @@ pub struct CrosscheckArgs {
     /// CalculiX element: C3D20R (default), C3D20, C3D8I or C3D8.
     #[arg(long, default_value = "C3D20R")]
     pub element: String,
+    /// twistopt's element: `standard` (the problem's Q2/P1 Hex27) or `matched` (the ccx element's
+    /// own discretisation: Hex20, pure displacement, 2×2×2 Gauss points for C3D20R, 3×3×3 for C3D20).
+    #[arg(long, default_value = "standard")]
+    pub twistopt_element: String,
     /// Override a problem value: section.key=value (as for `evaluate`). Repeatable.
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
     pub set: Vec<String>,
@@ -45,6 +49,7 @@ pub fn run(args: &CrosscheckArgs) -> Result<()> {
         sets.push("scenes.full=true".into());
     }
     let element = CcxElement::parse(&args.element).map_err(|e| anyhow!("--element: {e}"))?;
+    let tw = TwistoptElement::parse(&args.twistopt_element).map_err(|e| anyhow!("--twistopt-element: {e}"))?;
     let problem = Problem::load(&args.problem, &sets)?;
     let scenes: Vec<SceneKind> = if args.scene.is_empty() {
         problem.validate()?.scenes
@@ -56,7 +61,7 @@ pub fn run(args: &CrosscheckArgs) -> Result<()> {
     };
     let ccx = args.ccx.clone().unwrap_or_else(ccx_command);
     let opts = DeckOptions { element, ..DeckOptions::default() };
-    crosscheck(&problem, &scenes, &opts, &ccx, &args.out, |l| println!("{l}"))?;
+    crosscheck(&problem, &scenes, &opts, tw, &ccx, &args.out, |l| println!("{l}"))?;
     println!("wrote {}", args.out.join("crosscheck.json").display());
     Ok(())
 }

@@ -7,6 +7,7 @@ need_apt=()
 command -v python3 >/dev/null 2>&1 || need_apt+=(python3)
 python3 -m pip --version >/dev/null 2>&1 || need_apt+=(python3-pip)
 command -v cmake >/dev/null 2>&1 || need_apt+=(cmake)
+command -v ccx >/dev/null 2>&1 || need_apt+=(calculix-ccx)   # CalculiX, for the crosscheck test
 
 if [ ${#need_apt[@]} -gt 0 ]; then
     SUDO=""

@@ -4,9 +4,11 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod crosscheck;
 pub mod evaluate;
 pub mod gradient;
 pub mod optimise;
+pub mod export;
 pub mod geometry;
 pub mod sweep;
 pub mod verify;
@@ -19,7 +21,8 @@ pub mod verify;
 ///
 /// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports), `evaluate` (FE
 /// load scenes of a problem file), `gradient` (adjoint sensitivities), `optimise` (gradient-based
-/// design optimisation), `sweep` / `sweep-merge` (grid sweeps) and `verify`. Run
+/// design optimisation), `sweep` / `sweep-merge` (grid sweeps), `verify`, `export` (CalculiX
+/// decks) and `crosscheck` (against CalculiX). Run
 /// `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
 #[command(name = "twistopt", version, propagate_version = true)]
@@ -53,6 +56,11 @@ pub enum Command {
     SweepMerge(sweep::SweepMergeArgs),
     /// Compare an optimiser's best design (DIR/best.json) with a sweep's best; write verify.json.
     Verify(verify::VerifyArgs),
+    /// Write a complete, runnable CalculiX deck (INP) of one scene of a problem file.
+    Export(export::ExportArgs),
+    /// Run twistopt and CalculiX (ccx) on the same scenes and mesh; write both side by side with
+    /// relative differences, wall times and DOF counts to DIR/crosscheck.json.
+    Crosscheck(crosscheck::CrosscheckArgs),
 }
 
 /// Run a parsed command line.
@@ -65,5 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Sweep(args) => sweep::run(&args),
         Command::SweepMerge(args) => sweep::run_merge(&args),
         Command::Verify(args) => verify::run(&args),
+        Command::Export(args) => export::run(&args),
+        Command::Crosscheck(args) => crosscheck::run(&args),
     }
 }

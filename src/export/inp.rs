@@ -10,6 +10,12 @@ use twistopt_solver::mesh::{ElementKind, Mesh};
 
 /// Render the deck as a string (1-based node and element numbers).
 pub fn inp_string(mesh: &Mesh, heading: &str) -> String {
+    inp_string_with_type(mesh, heading, None)
+}
+
+/// [`inp_string`] with another CalculiX element type for the same nodes (e.g. `C3D20R` for a
+/// quadratic mesh, `C3D8I` for a linear one); `None` keeps the default of the element kind.
+pub fn inp_string_with_type(mesh: &Mesh, heading: &str, element_type: Option<&str>) -> String {
     let m;
     let mesh = if mesh.kind == ElementKind::Hex27 {
         m = mesh.to_kind(ElementKind::Hex20);
@@ -21,9 +27,10 @@ pub fn inp_string(mesh: &Mesh, heading: &str) -> String {
     let _ = writeln!(s, "*HEADING\n{heading}");
     s.push_str("*NODE, NSET=NALL\n");
     for (i, p) in mesh.nodes.iter().enumerate() {
-        let _ = writeln!(s, "{}, {:.15e}, {:.15e}, {:.15e}", i + 1, p[0], p[1], p[2]);
+        // CalculiX reads at most 20 characters per field: 13 significant digits fit
+    let _ = writeln!(s, "{}, {:.12e}, {:.12e}, {:.12e}", i + 1, p[0], p[1], p[2]);
     }
-    let _ = writeln!(s, "*ELEMENT, TYPE={}, ELSET=EALL", mesh.kind.abaqus_name());
+    let _ = writeln!(s, "*ELEMENT, TYPE={}, ELSET=EALL", element_type.unwrap_or(mesh.kind.abaqus_name()));
     for e in 0..mesh.n_elements() {
         let ids: Vec<String> = mesh.element(e).iter().map(|n| (n + 1).to_string()).collect();
         // at most 16 entries per line (element number + 15 nodes), continuation lines after

@@ -42,7 +42,14 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
         v.mesh.size_string(),
         op.max_evaluations
     );
+    let finished: std::sync::Mutex<Vec<RunResult>> = std::sync::Mutex::new(Vec::new());
     let runs = run_all(&op, &sec.optimisers, &starts, |r| {
+        if let Ok(mut f) = finished.lock() {
+            f.push(r.clone());
+            if let Err(e) = write_results(&args.out, &op, &v, &f, t0.elapsed().as_secs_f64()) {
+                eprintln!("warning: could not write intermediate results: {e:#}");
+            }
+        }
         let b = r.best.map(|i| &r.evaluations[i]);
         println!(
             "  {} start {}: {} after {} evaluations in {:.1} s; best {}",
@@ -64,8 +71,18 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
             if e.status == "ok" { String::new() } else { format!(", {}", e.status) }
         );
     });
-    let (oref_unit, unit) = (op.objective.reference().0, op.objective.reference().1);
-    let _ = oref_unit;
+    let unit = op.objective.reference().1;
+    let best = write_results(&args.out, &op, &v, &runs, t0.elapsed().as_secs_f64())?;
+    println!("best: {}", serde_json::to_string(&best["summary"]).unwrap_or_default());
+    plots(&args.out, &runs, unit)?;
+    println!("wrote history.json, best.json and plots to {} in {:.1} s", args.out.display(), t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// Write history.json and best.json for the runs finished so far (atomically: an interrupted
+/// optimisation keeps the runs it completed). Returns best.json's content.
+fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &crate::problem::Validated, runs: &[RunResult], wall_time_s: f64) -> Result<Value> {
+    let unit = op.objective.reference().1;
     // history.json
     let hist_runs: Vec<Value> = runs
         .iter()
@@ -94,16 +111,13 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
         "variables": op.variables, "fixed": op.fixed, "constraints": "radius:<scene> = (KS max radius − limit)/(limit − 20 mm) <= 0; stability = (p − (1 − margin)·p_limit)/(p range) <= 0", "stability_margin": crate::optimise::STABILITY_MARGIN,
         "ballooning_limit_mm": op.ballooning_limit_mm, "ks_rho_per_mm": op.ks_rho,
         "mesh": v.mesh.size_string(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
-        "runs": hist_runs, "wall_time_s": t0.elapsed().as_secs_f64(),
+        "runs": hist_runs, "wall_time_s": wall_time_s,
     });
-    write_json_atomic(&args.out.join("history.json"), &history)?;
+    write_json_atomic(&out.join("history.json"), &history)?;
     // best.json
     let best = best_json(&op.objective, &runs, &op.fixed);
-    write_json_atomic(&args.out.join("best.json"), &best)?;
-    println!("best: {}", serde_json::to_string(&best["summary"]).unwrap_or_default());
-    plots(&args.out, &runs, unit)?;
-    println!("wrote history.json, best.json and plots to {} in {:.1} s", args.out.display(), t0.elapsed().as_secs_f64());
-    Ok(())
+    write_json_atomic(&out.join("best.json"), &best)?;
+    Ok(best)
 }
 
 fn fmt_design(d: &std::collections::BTreeMap<String, f64>) -> String {

@@ -233,28 +233,12 @@ impl OptProblem {
         let n = self.n();
         let m = self.n_constraints();
         let (oref, _) = self.objective.reference();
-        let mut ev = Evaluation {
-            x: x.to_vec(),
-            design: design.clone(),
-            objective: f64::NAN,
-            gradient: BTreeMap::new(),
-            constraints: BTreeMap::new(),
-            feasible: false,
-            theta_deg: None,
-            tau_nm: None,
-            max_radius_mm: f64::NAN,
-            p_limit_kpa: None,
-            scenes: BTreeMap::new(),
-            status: "ok".into(),
-            newton_iterations: 0,
-            adjoint_solves: 0,
-            time_s: 0.0,
-            warm_started: false,
-            f: 0.0,
-            df: vec![0.0; n],
-            g: vec![1.0; m],
-            dg: vec![vec![0.0; n]; m],
-        };
+        let mut ev = Evaluation::from_parts(x, 0.0, vec![0.0; n], vec![1.0; m], vec![vec![0.0; n]; m]);
+        ev.design = design.clone();
+        ev.objective = f64::NAN;
+        ev.gradient.clear();
+        ev.constraints.clear();
+        ev.feasible = false;
         let fail = |mut ev: Evaluation, why: String| {
             ev.status = why;
             if let Some(lg) = last_good {

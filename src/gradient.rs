@@ -283,7 +283,7 @@ fn perturbed(
     base: &SceneGradient,
 ) -> Option<BTreeMap<String, f64>> {
     let (g2, o2, p2) = match name {
-        P_PRESSURE => (ActuatorGeometry::new(&geom.design, geom.policy).ok()?, opts.clone(), p_kpa + delta),
+        P_PRESSURE => (geom.clone(), opts.clone(), p_kpa + delta),
         P_MU => {
             let mut o = opts.clone();
             match o.material {
@@ -294,7 +294,7 @@ fn perturbed(
                 }
                 _ => return None,
             }
-            (ActuatorGeometry::new(&geom.design, geom.policy).ok()?, o, p_kpa)
+            (geom.clone(), o, p_kpa)
         }
         _ => {
             let v = geom.design.get(name).ok()?;

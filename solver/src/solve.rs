@@ -97,6 +97,7 @@ fn newton_inner(
         Err(f)
     };
     let mut stats = NewtonStats::default();
+    let trace_newton = trace_enabled();
     let mut a = match model.assemble(q, loads, true) {
         Ok(a) => a,
         Err(e) => return fail(q, elem_fail(e)),
@@ -211,6 +212,9 @@ fn newton_inner(
                 }
             }
         }
+        if trace_newton {
+            eprintln!("[newton] it {it} |r| {rn:.3e} scale {scale:.3e} g0 {g0:.3e} s {s:.3} indefinite {}", !matches!(fac, Factor::Llt(_)));
+        }
         match accepted {
             Some((qt, at)) => {
                 *q = qt;
@@ -220,6 +224,13 @@ fn newton_inner(
         }
     }
     fail(q, NewtonFailure::IterationLimit)
+}
+
+/// `TWISTOPT_TRACE=1` in the environment prints every load step and Newton iteration to stderr
+/// (a debugging aid for hard load paths).
+fn trace_enabled() -> bool {
+    static TRACE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *TRACE.get_or_init(|| std::env::var_os("TWISTOPT_TRACE").is_some())
 }
 
 fn elem_fail(e: ElementError) -> NewtonFailure {
@@ -332,6 +343,7 @@ pub fn follow_path(
     let mut loads = from.clone();
     // factor of the tangent at the last converged state, for the predictor
     let mut f_conv: Option<Factor> = model.assemble(&q, from, true).ok().and_then(|a| a.k).and_then(|k| model.factor(&k).ok());
+    let trace = trace_enabled();
     while t < 1.0 - 1e-12 {
         if steps >= opts.max_steps {
             return PathResult { status: PathStatus::Failed(FailureCause::StepLimit), t, q, loads, steps, newton_iterations: total_it };
@@ -350,7 +362,14 @@ pub fn follow_path(
                 }
             }
         }
-        match newton_factored(model, &mut qn, &trial, &opts.newton) {
+        let res = newton_factored(model, &mut qn, &trial, &opts.newton);
+        if trace {
+            match &res {
+                Ok((st, _, _)) => eprintln!("[trace] t {tn:.5} dt {dt:.5} p {:.4} kPa: converged in {}", trial.pressure * 1e3, st.iterations),
+                Err(f) => eprintln!("[trace] t {tn:.5} dt {dt:.5} p {:.4} kPa: failed {f:?}", trial.pressure * 1e3),
+            }
+        }
+        match res {
             Ok((stats, a, fac)) => {
                 steps += 1;
                 f_conv = Some(fac);

@@ -6,5 +6,5 @@ cd "$(dirname "$0")/../.."
 B="cargo run --release --"
 $B evaluate problems/paper-example.toml --set fidelity.preset=coarse  --set output.vtu=false --out studies/paper-example/coarse
 $B evaluate problems/paper-example.toml --set fidelity.preset=default --set output.vtu=false --out studies/paper-example/default
-$B evaluate problems/paper-example.toml --set fidelity.mesh=60x20x2   --set output.vtu=false --out studies/paper-example/fine-60x20x2
-cargo run --release --example paper_example_study -- studies/paper-example coarse default fine-60x20x2
+$B evaluate problems/paper-example.toml --set fidelity.preset=fine    --set output.vtu=false --out studies/paper-example/fine
+cargo run --release --example paper_example_study -- studies/paper-example coarse default fine

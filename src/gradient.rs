@@ -213,11 +213,11 @@ pub fn scene_gradient(
         let t2 = Instant::now();
         // the limit state: this one if the ramp already failed before p, else continue upward
         let cont = continue_to_failure(&sm, opts, &eq, cap);
-        let lim = if eq.end.is_some() { Some(&eq) } else { cont.as_ref() };
+        out.cost.limit_newton_iterations = cont.newton_iterations();
+        let lim = if eq.end.is_some() { Some(&eq) } else { cont.found() };
         if let Some(l) = lim {
             out.p_limit_kpa = Some(l.record.p_kpa);
             out.p_limit_cause = l.end.as_ref().map(|e| e.0.clone());
-            out.cost.limit_newton_iterations = cont.as_ref().map(|c| c.newton_iterations).unwrap_or(0);
             let shape_dirs: Vec<Direction> = dirs.iter().filter(|d| d.name != P_PRESSURE).cloned().collect();
             let sens = sm.model.assemble(&l.q, &l.loads, true).ok().and_then(|a| {
                 let k = a.k?;
@@ -434,6 +434,8 @@ pub struct DesignGradient {
     pub scenes: BTreeMap<String, SceneGradient>,
     /// Ω of the combined pair (free + blocked) and/or the pure-twist pair, with gradients
     pub omega: BTreeMap<String, OmegaGradient>,
+    /// Newton iterations of every scene: equilibrium, warm start and the limit-pressure search
+    /// (a failed load step counts min(3, max_iter))
     pub newton_iterations: usize,
     pub adjoint_solves: usize,
     pub forward_time_s: f64,
@@ -492,7 +494,7 @@ pub fn design_gradient(
     for &kind in scenes {
         let w = warm.and_then(|w| w.get(kind.name())).map(|(p, q)| (q.as_slice(), *p));
         let g = scene_gradient(geom, opts, kind, p_kpa, rho, w, limit_cap)?;
-        out.newton_iterations += g.cost.newton_iterations;
+        out.newton_iterations += g.cost.newton_iterations + g.cost.limit_newton_iterations;
         out.adjoint_solves += g.cost.adjoint_solves;
         out.forward_time_s += g.cost.forward_time_s;
         out.gradient_time_s += g.cost.gradient_time_s;

@@ -18,12 +18,14 @@
 //! Under pressure control an inflated tube has a pressure maximum (limit point) beyond which it
 //! snaps through and balloons; on this geometry that, not the radius limit, usually ends a ramp
 //! (the letter's "analysis fails ... when the ballooning effect occurs"). Each evaluation
-//! therefore continues every scene's ramp from p upward (to p_max/(1 − m)) to find its
-//! failure pressure p_lim (at the last converged state) and its design sensitivity by the
-//! null-vector formula dp_lim/ds = −φᵀ∂r/∂s / φᵀ∂r/∂p ([`twistopt_solver::adjoint::limit_sensitivity`]).
+//! therefore continues every scene from p upward to find its pressure maximum p_lim — under
+//! volume control, to 1e-6 relative ([`crate::scene::pressure_maximum`]; a pressure ramp where
+//! that cannot decide) — and its design sensitivity by the null-vector formula
+//! dp_lim/ds = −φᵀ∂r/∂s / φᵀ∂r/∂p ([`twistopt_solver::adjoint::limit_sensitivity`]).
 //! The constraint `stability` = (p − (1 − m)·min p_lim)/(p_max − p_min) ≤ 0, m =
 //! [`STABILITY_MARGIN`], is then smooth with a gradient in every variable. The search stops at
-//! p_max/(1 − m); without a failure up to there the constraint is inactive (−0.01).
+//! cap = min([`LIMIT_WINDOW`]·p, p_max)/(1 − m); without a maximum up to there p_lim is clipped to
+//! the cap, so the constraint stays continuous (its design gradient is then zero).
 //!
 //! A design whose ramp fails before p has no stable equilibrium at p: the evaluation reports the
 //! values and gradients at the last converged pressure (status `failed-before-p`) and is
@@ -203,6 +205,9 @@ pub const FEAS_TOL: f64 = 1e-3;
 /// an actuator cannot be operated at its limit point, and solves there are ill-conditioned.
 pub const STABILITY_MARGIN: f64 = 0.02;
 
+/// The limit-pressure search covers p ≤ p_lim ≤ LIMIT_WINDOW·p/(1 − m) (at most p_max/(1 − m)).
+pub const LIMIT_WINDOW: f64 = 1.25;
+
 impl OptProblem {
     pub fn n(&self) -> usize {
         self.variables.len()
@@ -261,9 +266,12 @@ impl OptProblem {
         // the limit search goes to the pressure whose margin the highest allowed p needs
         let (pmax, prange) = match pi {
             Some(i) => (self.variables[i].upper, self.variables[i].upper - self.variables[i].lower),
-            None => (p, p.abs().max(1.0)),
+            None => (LIMIT_WINDOW * p, p.abs().max(1.0)),
         };
-        let cap = pmax / (1.0 - STABILITY_MARGIN);
+        // only a limit near p can make the constraint active: search up to LIMIT_WINDOW·p (at most
+        // p_max); beyond, p_lim is taken as the cap (a continuous, conservative clip)
+        let reach = (LIMIT_WINDOW * p).min(pmax).max(p);
+        let cap = reach / (1.0 - STABILITY_MARGIN);
         let dg: DesignGradient = match design_gradient(&geom, &self.opts, &self.scenes, p, self.ks_rho, warm.as_ref(), Some(cap)) {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("model-error: {e}")),
@@ -342,10 +350,11 @@ impl OptProblem {
                 ev.p_limit_kpa = Some(pl);
             }
             None => {
-                // no failure up to the cap: p_lim > cap, the constraint is inactive
-                ev.g[ms] = ((p - (1.0 - STABILITY_MARGIN) * cap) / prange).min(-0.01);
+                // no failure up to the cap: p_lim > cap, clipped to the cap (continuous with the
+                // branch above; (1 − m)·cap = min(LIMIT_WINDOW·p, p_max))
+                ev.g[ms] = (p - reach) / prange;
                 if let Some(i) = pi {
-                    ev.dg[ms][i] = 0.0;
+                    ev.dg[ms][i] = if LIMIT_WINDOW * p < pmax { 1.0 - LIMIT_WINDOW } else { 1.0 };
                 }
             }
         }

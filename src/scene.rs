@@ -451,11 +451,20 @@ pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Optio
 }
 
 /// Continue an equilibrium's pressure upward to `p_cap` (kPa) without the ballooning stop:
-/// None when the ramp reaches the cap, else the last converged state before the failure (the
-/// pressure maximum, for a limit point) with the failure in `end`.
-pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibrium, p_cap: f64) -> Option<Equilibrium> {
+/// `BelowCap` when it reaches the cap, else the last stable state (the pressure maximum, for a
+/// limit point) with the failure in `end`.
+///
+/// The pressure maximum is located under volume control ([`pressure_maximum`]: exact to 1e-6
+/// relative, about half the cost); when that cannot decide (a bifurcation, Newton failures) the
+/// pressure ramp with step halving to 0.1 kPa is used instead.
+pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibrium, p_cap: f64) -> LimitOutcome {
     if from.end.is_some() || p_cap <= from.loads.pressure * 1e3 {
-        return None;
+        return LimitOutcome::BelowCap { newton_iterations: 0 };
+    }
+    let mut spent = 0;
+    match pressure_maximum(sm, from, p_cap, &opts.steps.newton) {
+        Ok(found) => return found,
+        Err(iterations) => spent += iterations,
     }
     let mut o = opts.clone();
     o.ballooning_limit_mm = f64::INFINITY;
@@ -463,9 +472,205 @@ pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibr
     let mut ramp = Ramp::new(sm, &o);
     ramp.q = from.q.clone();
     ramp.loads = from.loads.clone();
-    let end = ramp.go(sm.loads(p_cap, 0.0))?;
+    let Some(end) = ramp.go(sm.loads(p_cap, 0.0)) else {
+        return LimitOutcome::BelowCap { newton_iterations: spent + ramp.iterations };
+    };
     let record = ramp.steps.last().cloned().unwrap_or_else(|| from.record.clone());
-    Some(Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: ramp.iterations, end: Some(end), warm_started: false })
+    LimitOutcome::Found(Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: spent + ramp.iterations, end: Some(end), warm_started: false })
+}
+
+/// What a search for the failure above an equilibrium found.
+pub enum LimitOutcome {
+    /// the last stable state (at the pressure maximum for a fold), with the failure in `end`
+    Found(Equilibrium),
+    /// the pressure reached the cap without failing
+    BelowCap { newton_iterations: usize },
+}
+
+impl LimitOutcome {
+    pub fn found(&self) -> Option<&Equilibrium> {
+        match self {
+            LimitOutcome::Found(e) => Some(e),
+            LimitOutcome::BelowCap { .. } => None,
+        }
+    }
+    pub fn newton_iterations(&self) -> usize {
+        match self {
+            LimitOutcome::Found(e) => e.newton_iterations,
+            LimitOutcome::BelowCap { newton_iterations } => *newton_iterations,
+        }
+    }
+}
+
+/// A converged volume-controlled state with its pressure slope dp/dV = 1/(gᵀK⁻¹g).
+struct VolState {
+    q: Vec<f64>,
+    p: f64,
+    v: f64,
+    slope: f64,
+    /// the fixed-pressure tangent is positive definite (stable under pressure control)
+    pd: bool,
+    a: Assembled,
+}
+
+fn vol_state(sm: &SceneModel, q: Vec<f64>, p: f64, a: Assembled) -> Option<VolState> {
+    let k = a.k.as_ref()?;
+    let (fac, pd) = match sm.model.factor(k) {
+        Ok(f) => (f, true),
+        Err(_) => (sm.model.factor_indefinite(k).ok()?, false),
+    };
+    let b = fac.solve(&a.dvol).ok()?;
+    let c: f64 = a.dvol.iter().zip(&b).map(|(g, x)| g * x).sum();
+    let slope = 1.0 / c;
+    (slope.is_finite() && a.volume.is_finite()).then(|| VolState { q, p, v: a.volume, slope, pd, a })
+}
+
+/// The pressure maximum above a converged, stable equilibrium, located under volume control
+/// (the cavity volume prescribed, the pressure an unknown; `solve::newton_volume`), where the
+/// path passes the maximum smoothly instead of failing at it. At each converged state the slope
+/// dp/dV = 1/(gᵀK⁻¹g) (g = ∂V/∂q) is known, so the maximum (dp/dV = 0) is found by secant steps
+/// on the slope, typically in 4–8 volume-controlled Newton solves, to |Δp| ≤ 1e-6·p.
+///
+/// Returns `BelowCap` when the pressure passes `p_cap_kpa` with no maximum below it; `Found`
+/// with the state at the maximum (status `limit-point`) — or, when the tangent loses positive
+/// definiteness while the pressure still rises (a bifurcation, not a fold), the last stable state
+/// found by bisecting the volume (to 1e-4 relative in p); `Err(newton_iterations_spent)` when the
+/// volume-controlled path cannot decide (Newton failures): the caller falls back to the ramp.
+pub fn pressure_maximum(sm: &SceneModel, from: &Equilibrium, p_cap_kpa: f64, newton: &twistopt_solver::solve::NewtonOptions) -> Result<LimitOutcome, usize> {
+    if from.end.is_some() || p_cap_kpa <= from.loads.pressure * 1e3 {
+        return Ok(LimitOutcome::BelowCap { newton_iterations: 0 });
+    }
+    let base = from.loads.clone();
+    let cap = p_cap_kpa * 1e-3;
+    let a0 = sm.model.assemble(&from.q, &base, true).map_err(|_| 0usize)?;
+    let s0 = vol_state(sm, from.q.clone(), base.pressure, a0).ok_or(0usize)?;
+    if !s0.pd || s0.slope <= 0.0 {
+        return Err(0);
+    }
+    let mut iterations = 0usize;
+    let mut prev: Option<VolState> = None;
+    let mut last = s0;
+    let v_ref = last.v.abs().max(1e-12);
+    // first volume step: the linear prediction of half the way to the cap, at most 5 % of V
+    // volume step bound: starts at the linear volume change of 2 % of the pressure (≥ 0.5 kPa),
+    // grows ×1.5 after easy solves, halves after failures
+    let mut dv_max = ((0.02 * last.p).max(0.5e-3) / last.slope).min(0.05 * v_ref);
+    let mut converged = false;
+    for _ in 0..40 {
+        // next target volume: the zero of the slope's secant (p(V) concave near a maximum)
+        let mut v_next = last.v + dv_max;
+        if let Some(pv) = &prev {
+            let curv = (last.slope - pv.slope) / (last.v - pv.v);
+            if curv < 0.0 && curv.is_finite() {
+                v_next = last.v - last.slope / curv;
+            } else if last.slope < 0.0 {
+                v_next = last.v - dv_max;
+            }
+        }
+        // the pressure error of the best state: |Δp| ≈ ½|slope·(V* − V)|
+        if prev.is_some() && 0.5 * (v_next - last.v).abs() * last.slope.abs() <= 1e-6 * last.p.abs() {
+            converged = true;
+            break;
+        }
+        v_next = v_next.clamp(last.v - dv_max, last.v + dv_max);
+        let mut solved = None;
+        let mut step = v_next - last.v;
+        for _cut in 0..6 {
+            let (mut q, mut p) = (last.q.clone(), last.p);
+            match twistopt_solver::solve::newton_volume(&sm.model, &mut q, &mut p, &base, last.v + step, newton) {
+                Ok((st, a)) => {
+                    iterations += st.iterations;
+                    if st.iterations <= 5 {
+                        dv_max = (1.5 * dv_max).max(1.5 * step.abs());
+                    }
+                    solved = Some((q, p, a));
+                    break;
+                }
+                Err(_) => {
+                    iterations += newton.max_iter.min(5);
+                    step *= 0.5;
+                    dv_max = 0.5 * step.abs().max(dv_max * 0.5);
+                }
+            }
+        }
+        let (q, p, a) = solved.ok_or(iterations)?;
+        let st = vol_state(sm, q, p, a).ok_or(iterations)?;
+        if std::env::var_os("TWISTOPT_TRACE").is_some() {
+            eprintln!("[pmax] V {:.6e} → {:.6e}: p {:.5} kPa slope {:.4e} pd {} ({} its total)", last.v, st.v, st.p * 1e3, st.slope, st.pd, iterations);
+        }
+        if st.p > cap && st.slope > 0.0 {
+            return Ok(LimitOutcome::BelowCap { newton_iterations: iterations });
+        }
+        if !st.pd && st.slope > 0.0 {
+            // stability lost with the pressure still rising: a bifurcation, not a pressure maximum.
+            // Bisect the volume for the last stable state (the point a pressure ramp fails at).
+            let (mut good, mut bad_v) = (last, st.v);
+            for _ in 0..8 {
+                if (bad_v - good.v).abs() * good.slope <= 1e-4 * good.p.abs() {
+                    break;
+                }
+                let vm = 0.5 * (good.v + bad_v);
+                let (mut q, mut p) = (good.q.clone(), good.p);
+                match twistopt_solver::solve::newton_volume(&sm.model, &mut q, &mut p, &base, vm, newton) {
+                    Ok((it, a)) => {
+                        iterations += it.iterations;
+                        match vol_state(sm, q, p, a) {
+                            Some(m) if m.pd => good = m,
+                            Some(_) => bad_v = vm,
+                            None => break,
+                        }
+                    }
+                    Err(_) => {
+                        iterations += newton.max_iter.min(5);
+                        break;
+                    }
+                }
+            }
+            let p_kpa = good.p * 1e3;
+            let mut loads = sm.loads(p_kpa, 0.0);
+            loads.presc = base.presc.clone();
+            let record = sm.record(&good.a, &loads, &good.q, iterations);
+            return Ok(LimitOutcome::Found(Equilibrium {
+                q: good.q,
+                loads,
+                record,
+                newton_iterations: iterations,
+                end: Some(("limit-point".into(), format!("the tangent loses positive definiteness beyond p = {p_kpa:.4} kPa with the pressure still rising (a bifurcation; located under volume control)"))),
+                warm_started: false,
+            }));
+        }
+        // keep the new state and, of the two before, the one closer to the maximum
+        let old = std::mem::replace(&mut last, st);
+        let keep_old = match &prev {
+            Some(pv) => old.slope.abs() <= pv.slope.abs() || old.slope * last.slope < 0.0,
+            None => true,
+        };
+        if keep_old {
+            prev = Some(old);
+        }
+        if let Some(pv) = &prev {
+            if pv.slope.abs() < last.slope.abs() {
+                let pv2 = prev.take().expect("checked");
+                prev = Some(std::mem::replace(&mut last, pv2));
+            }
+        }
+    }
+    if !converged || last.slope.abs() * v_ref > 0.05 * last.p.abs() {
+        return Err(iterations);
+    }
+    let loads = sm.loads(last.p * 1e3, 0.0);
+    let mut loads = loads;
+    loads.presc = base.presc.clone();
+    let record = sm.record(&last.a, &loads, &last.q, iterations);
+    let p_kpa = last.p * 1e3;
+    Ok(LimitOutcome::Found(Equilibrium {
+        q: last.q,
+        loads,
+        record,
+        newton_iterations: iterations,
+        end: Some(("limit-point".into(), format!("pressure maximum at p = {p_kpa:.4} kPa (located under volume control)"))),
+        warm_started: false,
+    }))
 }
 
 /// Ramp a scene's pressure through the given targets (kPa). Positive and negative targets are

@@ -133,8 +133,7 @@ fn cli_gradient_rejects_bad_input() {
 
 /// The limit pressure (the pressure maximum ending a ramp) and its sensitivity by the null-vector
 /// formula: exact in μ (p_lim ∝ μ at fixed κ/μ, so dp_lim/dμ = p_lim/μ) and against central
-/// differences of p_lim in α and l (p_lim itself is resolved to the ramp's smallest step, hence
-/// the looser tolerance there).
+/// differences of p_lim in α and l (p_lim is located under volume control to 1e-6 relative).
 #[test]
 fn limit_pressure_sensitivity() {
     let mut o = opts();
@@ -147,12 +146,13 @@ fn limit_pressure_sensitivity() {
     let pl = base.p_limit_kpa.expect("a pressure maximum below 90 kPa");
     assert!(pl > 40.0 && pl < 90.0, "{pl}");
     let dmu = base.p_limit_gradient["mu_MPa"];
-    assert!((dmu - pl / 0.34).abs() < 0.01 * pl / 0.34, "dp_lim/dmu {dmu} vs p_lim/mu {}", pl / 0.34);
-    for (name, h, l, a) in [("alpha_deg", 5.0, 0.0, 1.0), ("l_mm", 0.5, 1.0, 0.0)] {
+    assert!((dmu - pl / 0.34).abs() < 1e-3 * pl / 0.34, "dp_lim/dmu {dmu} vs p_lim/mu {}", pl / 0.34);
+    for (name, h, l, a) in [("alpha_deg", 1.0, 0.0, 1.0), ("l_mm", 0.1, 1.0, 0.0)] {
         let p = run(16.8 + l * h, 250.0 + a * h).p_limit_kpa.unwrap();
         let m = run(16.8 - l * h, 250.0 - a * h).p_limit_kpa.unwrap();
         let fd = (p - m) / (2.0 * h);
         let ad = base.p_limit_gradient[name];
-        assert!((fd - ad).abs() < 0.1 * fd.abs().max(1e-3), "{name}: null-vector {ad} vs fd {fd}");
+        eprintln!("{name}: dp_lim null-vector {ad} vs central FD {fd}");
+        assert!((fd - ad).abs() < 0.005 * fd.abs().max(1e-3), "{name}: null-vector {ad} vs fd {fd}");
     }
 }

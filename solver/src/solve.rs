@@ -440,6 +440,7 @@ pub fn newton_volume(
         Err(e) => return fail(q, p, elem_fail(e)),
     };
     let vtol = 1e-10 * v_target.abs().max(a.volume.abs());
+    let mut r1 = f64::INFINITY;
     let mut last_norm = f64::INFINITY;
     let mut growth = 0;
     for it in 0..=opts.max_iter {
@@ -454,6 +455,9 @@ pub fn newton_volume(
         let scale = ext_scale(&lo, &a).max(p.abs() * norm(&a.dvol));
         let tol = (opts.rtol * scale).max(opts.atol);
         let at_floor = it > 0 && rn <= (opts.stagnation_rtol * scale).max(opts.atol) && rn > 0.5 * last_norm;
+        if trace_enabled() {
+            eprintln!("[newton-volume] it {it} |r| {rn:.3e} tol {tol:.3e} dV {dv:.3e} vtol {vtol:.3e} p {:.6}", *p * 1e3);
+        }
         if (rn <= tol || at_floor) && dv.abs() <= vtol {
             stats.iterations = it;
             return Ok((stats, a));
@@ -466,6 +470,14 @@ pub fn newton_volume(
             if growth >= 2 {
                 return fail(q, p, NewtonFailure::Divergence);
             }
+        }
+        // fail fast: from a converged start the first iterate carries the increment's residual;
+        // a solve that has not reduced it after a few iterations is outside Newton's basin
+        if it == 1 {
+            r1 = rn;
+        }
+        if it >= (opts.stall_iterations / 2).max(3) && rn > r1 {
+            return fail(q, p, NewtonFailure::Divergence);
         }
         last_norm = rn;
         let kv = a.k.take().expect("tangent requested");

@@ -324,12 +324,14 @@ struct Ramp<'a> {
     fields: Vec<Vec<[f64; 3]>>,
     iterations: usize,
     gap: f64,
+    /// smallest pressure step (kPa) of the step halving before a failure is accepted
+    floor_kpa: f64,
 }
 
 impl<'a> Ramp<'a> {
     fn new(sm: &'a SceneModel, opts: &'a SceneOptions) -> Self {
         let hmesh = 2.0 * std::f64::consts::PI * 15.0 / (2.0 * sm.mesh.spec.n_around as f64);
-        Ramp { sm, opts, q: vec![0.0; sm.model.n_reduced()], loads: sm.loads(0.0, 0.0), steps: Vec::new(), fields: Vec::new(), iterations: 0, gap: (0.25 * hmesh).min(0.5) }
+        Ramp { sm, opts, q: vec![0.0; sm.model.n_reduced()], loads: sm.loads(0.0, 0.0), steps: Vec::new(), fields: Vec::new(), iterations: 0, gap: (0.25 * hmesh).min(0.5), floor_kpa: 0.1 }
     }
 
     /// Follow the loads to `to`; returns None when done, or the (status, cause) that ended it.
@@ -339,10 +341,10 @@ impl<'a> Ramp<'a> {
         let gap = self.gap;
         let mut stop_rec = Vec::new();
         let keep = self.opts.keep_fields;
-        // smallest step: 0.1 kPa (or the options' fraction if finer), whatever the segment length
+        // smallest step: floor_kpa (or the options' fraction if finer), whatever the segment length
         let mut steps_opts = self.opts.steps.clone();
         let span = ((to.pressure - self.loads.pressure).abs() * 1e3).max(1e-9);
-        steps_opts.min = steps_opts.min.min(0.1 / span).max(1e-6);
+        steps_opts.min = steps_opts.min.min(self.floor_kpa / span).max(1e-6);
         let mut fields = Vec::new();
         let res = follow_path(&sm.model, &self.q, &self.loads, &to, &steps_opts, |info| {
             let rec = sm.record(info.assembled, info.loads, info.q, info.newton_iterations);
@@ -502,6 +504,10 @@ impl LimitOutcome {
     }
 }
 
+/// Step floor (kPa) of a positive pressure ramp before the volume-controlled search for the
+/// pressure maximum takes over.
+pub const COARSE_FLOOR_KPA: f64 = 2.0;
+
 /// A converged volume-controlled state with its pressure slope dp/dV = 1/(gᵀK⁻¹g).
 struct VolState {
     q: Vec<f64>,
@@ -537,6 +543,20 @@ fn vol_state(sm: &SceneModel, q: Vec<f64>, p: f64, a: Assembled) -> Option<VolSt
 /// found by bisecting the volume (to 1e-4 relative in p); `Err(newton_iterations_spent)` when the
 /// volume-controlled path cannot decide (Newton failures): the caller falls back to the ramp.
 pub fn pressure_maximum(sm: &SceneModel, from: &Equilibrium, p_cap_kpa: f64, newton: &twistopt_solver::solve::NewtonOptions) -> Result<LimitOutcome, usize> {
+    pressure_maximum_path(sm, from, p_cap_kpa, newton, f64::INFINITY, &mut Vec::new())
+}
+
+/// As [`pressure_maximum`], also recording the stable states it passes (rising pressure, in
+/// order, with their displacement fields; the final state included) in `path`, and stopping with status `ballooning` at the first whose max radius exceeds
+/// `ballooning_limit_mm`.
+pub fn pressure_maximum_path(
+    sm: &SceneModel,
+    from: &Equilibrium,
+    p_cap_kpa: f64,
+    newton: &twistopt_solver::solve::NewtonOptions,
+    ballooning_limit_mm: f64,
+    path: &mut Vec<(StepRecord, Vec<[f64; 3]>)>,
+) -> Result<LimitOutcome, usize> {
     if from.end.is_some() || p_cap_kpa <= from.loads.pressure * 1e3 {
         return Ok(LimitOutcome::BelowCap { newton_iterations: 0 });
     }
@@ -601,6 +621,23 @@ pub fn pressure_maximum(sm: &SceneModel, from: &Equilibrium, p_cap_kpa: f64, new
         if st.p > cap && st.slope > 0.0 {
             return Ok(LimitOutcome::BelowCap { newton_iterations: iterations });
         }
+        if st.pd && st.slope > 0.0 && path.last().map_or(st.p > base.pressure, |r| st.p * 1e3 > r.0.p_kpa) {
+            let mut loads = sm.loads(st.p * 1e3, 0.0);
+            loads.presc = base.presc.clone();
+            let rec = sm.record(&st.a, &loads, &st.q, iterations);
+            let over = rec.max_radius_mm > ballooning_limit_mm;
+            path.push((rec.clone(), st.a.u.clone()));
+            if over {
+                return Ok(LimitOutcome::Found(Equilibrium {
+                    q: st.q,
+                    loads,
+                    record: rec,
+                    newton_iterations: iterations,
+                    end: Some(("ballooning".into(), format!("max deformed radius exceeded the ballooning limit {ballooning_limit_mm:.2} mm"))),
+                    warm_started: false,
+                }));
+            }
+        }
         if !st.pd && st.slope > 0.0 {
             // stability lost with the pressure still rising: a bifurcation, not a pressure maximum.
             // Bisect the volume for the last stable state (the point a pressure ramp fails at).
@@ -630,6 +667,9 @@ pub fn pressure_maximum(sm: &SceneModel, from: &Equilibrium, p_cap_kpa: f64, new
             let mut loads = sm.loads(p_kpa, 0.0);
             loads.presc = base.presc.clone();
             let record = sm.record(&good.a, &loads, &good.q, iterations);
+            if path.last().map_or(true, |r| r.0.p_kpa < record.p_kpa) {
+                path.push((record.clone(), good.a.u.clone()));
+            }
             return Ok(LimitOutcome::Found(Equilibrium {
                 q: good.q,
                 loads,
@@ -663,6 +703,9 @@ pub fn pressure_maximum(sm: &SceneModel, from: &Equilibrium, p_cap_kpa: f64, new
     loads.presc = base.presc.clone();
     let record = sm.record(&last.a, &loads, &last.q, iterations);
     let p_kpa = last.p * 1e3;
+    if path.last().map_or(true, |r| r.0.p_kpa < record.p_kpa) {
+        path.push((record.clone(), last.a.u.clone()));
+    }
     Ok(LimitOutcome::Found(Equilibrium {
         q: last.q,
         loads,
@@ -701,11 +744,43 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
         }
         let mut ramp = Ramp::new(&sm, opts);
         let mut end = None;
-        for p in branch {
-            if let Some(e) = ramp.go(sm.loads(p, 0.0)) {
-                end = Some(e);
-                break;
+        let positive = branch[0] > 0.0;
+        let p_last = *branch.last().expect("non-empty");
+        if positive {
+            // a failure is first detected with a coarse step floor, then pinned under volume control
+            ramp.floor_kpa = COARSE_FLOOR_KPA;
+        }
+        let mut i = 0;
+        while i < branch.len() {
+            let Some(e) = ramp.go(sm.loads(branch[i], 0.0)) else {
+                i += 1;
+                continue;
+            };
+            if positive && ramp.floor_kpa > 0.1 && !matches!(e.0.as_str(), "ballooning" | "self-contact") {
+                let eq = Equilibrium { q: ramp.q.clone(), loads: ramp.loads.clone(), record: ramp.steps.last().cloned().unwrap_or_else(|| steps[0].clone()), newton_iterations: 0, end: None, warm_started: false };
+                let mut path = Vec::new();
+                match pressure_maximum_path(&sm, &eq, p_last, &opts.steps.newton, opts.ballooning_limit_mm, &mut path) {
+                    Ok(LimitOutcome::Found(m)) => {
+                        ramp.iterations += m.newton_iterations;
+                        for (rec, u) in path {
+                            ramp.steps.push(rec);
+                            if opts.keep_fields {
+                                ramp.fields.push(u);
+                            }
+                        }
+                        end = m.end;
+                        break;
+                    }
+                    Ok(LimitOutcome::BelowCap { newton_iterations }) | Err(newton_iterations) => {
+                        // undecided: resume the pressure ramp with the fine floor
+                        ramp.iterations += newton_iterations;
+                        ramp.floor_kpa = 0.1;
+                        continue;
+                    }
+                }
             }
+            end = Some(e);
+            break;
         }
         steps.extend(ramp.steps);
         fields.extend(ramp.fields);

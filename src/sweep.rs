@@ -147,7 +147,7 @@ impl Grid {
             values.insert(a.name.clone(), a.values[(rem % n) as usize]);
             rem /= n;
         }
-        Design { values }
+        Design { values, variant: Default::default() }
     }
 
     /// Check the axes against the design space: every parameter exactly once, finite values,

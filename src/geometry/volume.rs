@@ -132,16 +132,17 @@ fn enclosed_volume_general<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> 
         patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
     }
     let eta_d = lift(cst(eta));
-    let zp = z_patches_of(act);
+    // the junctions move with the design (end tangent) and the offset layer's integrand jumps
+    // there (its z-speed involves ρ''), so the patch bounds carry the derivatives
+    let zj = act.profile.z_junction;
+    let zl = cst::<D>(L_TUBE);
     let mut total = zero;
     for &(sa, sb) in &patches_s {
         let hs = (sb - sa) * 0.5;
         for (xs, ws) in x.iter().zip(&w) {
             let shat = sa + hs * (xs + 1.0);
             let (d0, dl) = act.trim_shifts(shat, cst(eta));
-            for (m, &(za, zb)) in zp.iter().enumerate() {
-                let za = if m == 0 { d0 + za } else { cst::<D>(za) };
-                let zb = if m == 2 { dl + zb } else { cst::<D>(zb) };
+            for (za, zb) in [(d0, zj), (zj, zl - zj), (zl - zj, zl + dl)] {
                 let hz = (zb - za) * 0.5;
                 for (xz, wz) in x.iter().zip(&w) {
                     let z = za + hz * (xz + 1.0);

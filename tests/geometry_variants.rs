@@ -346,6 +346,13 @@ fn without_cap_load_the_cap_is_not_pushed() {
     let (on, off) = (run(SceneKind::PureTwist, true), run(SceneKind::PureTwist, false));
     assert_eq!(on.theta_deg, off.theta_deg);
     assert_eq!(on.max_radius_mm, off.max_radius_mm);
+    // the CalculiX deck drops its cap force with it
+    use twistopt::calculix::{build_deck, DeckOptions};
+    let mat = NeoHookean::with_ratio(0.34, 300.0).unwrap().into();
+    let spec = MeshSpec::parse("12x4x1").unwrap();
+    let with = build_deck(&g, &spec, &mat, SceneKind::Free, &[10.0], &DeckOptions::default()).unwrap();
+    let without = build_deck(&g, &spec, &mat, SceneKind::Free, &[10.0], &DeckOptions { cap_load: false, ..DeckOptions::default() }).unwrap();
+    assert!(with.text.contains("*CLOAD") && !without.text.contains("*CLOAD") && without.text.contains("*DLOAD"));
 }
 
 fn out_dir(name: &str) -> PathBuf {

@@ -39,7 +39,7 @@ pub const T_WALL: f64 = 3.0;
 /// Smallest principal radius (mm) the offset wall of a geometry variant may have on its offset
 /// side: the surface the wall is offset from must have radii ≥ t + this (else the variant is
 /// refused at that design; the spec's own designs all satisfy it).
-pub const MIN_WALL_RADIUS: f64 = 1.0;
+pub const MIN_WALL_RADIUS: f64 = 0.2;
 /// Radius of the envelope used for the energy density (letter), R0 (mm).
 pub const R0_ENVELOPE: f64 = 25.0;
 

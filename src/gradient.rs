@@ -267,7 +267,7 @@ fn param_scale(name: &str, geom: &ActuatorGeometry, opts: &SceneOptions, p: f64)
             Material::NeoHookean(nh) => nh.mu,
             _ => 1.0,
         },
-        _ => crate::geometry::DesignSpace::actuator().get(name).map(|s| s.max - s.min).unwrap_or_else(|| geom.design.values.get(name).copied().unwrap_or(1.0).abs().max(1.0)),
+        _ => crate::geometry::DesignSpace::lookup(name).map(|s| s.max - s.min).unwrap_or_else(|| geom.design.values.get(name).copied().unwrap_or(1.0).abs().max(1.0)),
     }
 }
 

@@ -27,9 +27,7 @@ use std::collections::BTreeMap;
 use num_dual::Dual64;
 use twistopt_solver::mesh::{ElementKind, Face, Mesh, Side, HEX27_NATURAL};
 
-use crate::geometry::{
-    scalar::cst, ActuatorGeometry, Actuator, DesignSpace, GeometryError, Scalar,
-};
+use crate::geometry::{scalar::cst, Actuator, ActuatorGeometry, GeometryError, Scalar};
 
 /// Mesh presets: (name, N_around, N_along, N_through, element kind), Hex27 (Q2/P1) in the thin
 /// wall. `fine` is 60x20x2: on the paper example it moves θ, τ by 0.14 %, 0.2 % from `default`
@@ -264,6 +262,19 @@ fn lattice_coords<D: Scalar>(act: &Actuator<D>, spec: &MeshSpec) -> Vec<[D; 3]> 
     let shat = around_shat(act, spec);
     let zs: Vec<D> = (0..nz).map(|j| act.profile.at_arclength(j as f64 / (nz - 1) as f64).0).collect();
     let mut out = Vec::with_capacity(na * nz * nk);
+    if act.needs_trim() {
+        // geometry variants whose wall is trimmed by the end planes (end tangent, twist first)
+        for k in 0..nk {
+            let eta = cst::<D>(1.0 - k as f64 / (nk - 1) as f64);
+            let shifts: Vec<(D, D)> = shat.iter().map(|s| act.trim_shifts(*s, eta)).collect();
+            for z in zs.iter() {
+                for (s, sh) in shat.iter().zip(&shifts) {
+                    out.push(act.wall_point_with(*s, *z, eta, *sh));
+                }
+            }
+        }
+        return out;
+    }
     for k in 0..nk {
         let eta = cst::<D>(1.0 - k as f64 / (nk - 1) as f64);
         for z in zs.iter() {
@@ -395,7 +406,9 @@ pub fn build_mesh(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<ActuatorMe
 }
 
 /// dX/dp for every node and every named design parameter (same numbering as [`build_mesh`]),
-/// from forward-mode dual numbers. α derivatives are per degree (the design unit).
+/// from forward-mode dual numbers. α (and end-tangent) derivatives are per degree (the design
+/// unit). The parameters are the design's ([`crate::geometry::Design::parameter_names`]: Table I
+/// plus the optional ones it carries).
 pub fn mesh_shape_derivatives(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<Vec<(String, Vec<[f64; 3]>)>, MeshError> {
     spec.validate()?;
     let mut out = Vec::new();
@@ -413,8 +426,8 @@ pub fn mesh_shape_derivatives(geom: &ActuatorGeometry, spec: &MeshSpec) -> Resul
     } else {
         None
     };
-    for name in DesignSpace::actuator().names() {
-        let act: Actuator<Dual64> = geom.dual_actuator(name)?;
+    for name in geom.design.parameter_names() {
+        let act: Actuator<Dual64> = geom.dual_actuator(&name)?;
         let lat = lattice_coords(&act, spec);
         let d: Vec<[f64; 3]> = lat.iter().map(|p| [p[0].eps, p[1].eps, p[2].eps]).collect();
         let d = match &map {
@@ -430,7 +443,7 @@ pub fn mesh_shape_derivatives(geom: &ActuatorGeometry, spec: &MeshSpec) -> Resul
                 r
             }
         };
-        out.push((name.to_string(), d));
+        out.push((name, d));
     }
     Ok(out)
 }

@@ -101,6 +101,8 @@ pub struct OptProblem {
     pub variables: Vec<Variable>,
     /// values of every design parameter and of p_kPa (the fixed ones stay at these)
     pub fixed: BTreeMap<String, f64>,
+    /// the geometry variant of the problem's design (the spec by default)
+    pub variant: crate::geometry::GeometryVariant,
     pub policy: RangePolicy,
     pub opts: SceneOptions,
     pub ks_rho: f64,
@@ -256,7 +258,10 @@ impl OptProblem {
             ev.time_s = t0.elapsed().as_secs_f64();
             ev
         };
-        let d = crate::geometry::Design { values: design.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect() };
+        let d = crate::geometry::Design {
+            values: design.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect(),
+            variant: self.variant,
+        };
         let geom = match ActuatorGeometry::new(&d, self.policy) {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("invalid-geometry: {e}")),
@@ -869,7 +874,9 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
         if name == P_PRESSURE {
             variables.push(Variable { name: name.clone(), lower: sec.p_min_kpa, upper: p_max });
         } else {
-            let ps = space.get(name).ok_or_else(|| anyhow!("optimise.variables: unknown variable '{name}' (expected {}, p_kPa)", space.names().join(", ")))?;
+            let ps = DesignSpace::lookup(name).ok_or_else(|| {
+                anyhow!("optimise.variables: unknown variable '{name}' (expected {}, p_kPa, or the optional {})", space.names().join(", "), DesignSpace::optional().names().join(", "))
+            })?;
             if policy != RangePolicy::TableI {
                 bail!("optimise works in the Table-I box: set design.range = \"table1\"");
             }
@@ -907,6 +914,7 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
             scenes: v.scenes.clone(),
             variables,
             fixed,
+            variant: v.geometry.design.variant,
             policy: RangePolicy::TableI,
             opts,
             ks_rho: sec.ks_rho_per_mm,

@@ -9,6 +9,11 @@
 //! l_mm = 10.0                   # waist radius of the bellows profile, mm
 //! alpha_deg = 60.0              # pre-twist of the top face, degrees
 //! range = "table1"              # "table1" (the letter's Table I box, default) | "extended"
+//! variant = "spec"              # geometry reading (default "spec" = GEOMETRY.md): "spec" or any
+//!                               # of tips-on-r | midpoint-centres, outward, twist-first joined by
+//!                               # '+' (studies/letter-calibration/VARIANTS.md)
+//! # end_tangent_deg = 0.0       # optional design parameter: the lateral profile's end-tangent
+//!                               # angle from the vertical (absent = the spec's vertical ends)
 //!
 //! [material]                    # optional; Neo-Hookean
 //! mu_MPa = 0.34                 # shear modulus (default 0.34, the letter's Hei-Cast 8400)
@@ -25,6 +30,8 @@
 //!                               # free + blocked)
 //! full = false                  # true: full 360° model instead of the 120° sector (also --full)
 //! ballooning_limit_mm = 28.75   # stop a ramp when the max deformed radius exceeds this (1.15·R0)
+//! cap_load = true               # the pressure also pushes on the top cap (default); false = on
+//!                               # the lateral wall only
 //!
 //! [torque_rotation]             # optional: the letter's Fig. 4b (torque vs prescribed rotation)
 //! pressures_kPa = [30, 71]      # one line per pressure (non-zero)
@@ -52,7 +59,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
+use crate::geometry::{ActuatorGeometry, Design, GeometryVariant, RangePolicy};
 use crate::meshing::MeshSpec;
 use crate::scene::{SceneKind, SceneOptions};
 use twistopt_solver::material::{Material, NeoHookean};
@@ -156,6 +163,23 @@ pub struct DesignSection {
     pub alpha_deg: f64,
     #[serde(default)]
     pub range: RangeName,
+    /// geometry reading (default: the spec; omitted from the echo when it is)
+    #[serde(default, skip_serializing_if = "GeometryVariant::is_spec")]
+    pub variant: GeometryVariant,
+    /// optional design parameter: the profile's end-tangent angle (degrees)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub end_tangent_deg: Option<f64>,
+}
+
+impl DesignSection {
+    /// The design (parameters and variant) of this section.
+    pub fn design(&self) -> Design {
+        let d = Design::new(self.r_mm, self.l_mm, self.alpha_deg).with_variant(self.variant);
+        match self.end_tangent_deg {
+            Some(g) => d.with_end_tangent(g),
+            None => d,
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -198,6 +222,13 @@ pub struct ScenesSection {
     pub full: bool,
     #[serde(default = "default_ballooning")]
     pub ballooning_limit_mm: f64,
+    /// whether the pressure also pushes on the top cap (default true; omitted from the echo then)
+    #[serde(default = "default_true", skip_serializing_if = "is_true")]
+    pub cap_load: bool,
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
 }
 
 fn default_scenes() -> Vec<String> {
@@ -209,7 +240,7 @@ fn default_ballooning() -> f64 {
 
 impl Default for ScenesSection {
     fn default() -> Self {
-        ScenesSection { run: default_scenes(), full: false, ballooning_limit_mm: default_ballooning() }
+        ScenesSection { run: default_scenes(), full: false, ballooning_limit_mm: default_ballooning(), cap_load: true }
     }
 }
 
@@ -312,7 +343,7 @@ impl Problem {
             RangeName::Table1 => RangePolicy::TableI,
             RangeName::Extended => RangePolicy::Extended,
         };
-        let geometry = ActuatorGeometry::new(&Design::new(d.r_mm, d.l_mm, d.alpha_deg), policy).map_err(|e| {
+        let geometry = ActuatorGeometry::new(&d.design(), policy).map_err(|e| {
             // the geometry's hint names the CLI flag of `geometry`; here the switch is design.range
             let msg = e.to_string().replace("pass --extended-range / RangePolicy::Extended", "set design.range = \"extended\"");
             anyhow!("design.{msg}")
@@ -404,6 +435,7 @@ impl Problem {
         o.sector = !self.scenes.full;
         o.ballooning_limit_mm = self.scenes.ballooning_limit_mm;
         o.keep_fields = self.output.vtu;
+        o.cap_load = self.scenes.cap_load;
         o
     }
 }
@@ -562,6 +594,55 @@ mod tests {
             Ok(()) => panic!("expected an error for {text:?} {sets:?}"),
             Err(e) => format!("{e:#}"),
         }
+    }
+
+    #[test]
+    fn geometry_variant_end_tangent_and_cap_load_keys() {
+        // defaults: the spec, no end tangent, cap loaded; none of them echoed
+        let p = Problem::from_str_with(BASE, "t", &[]).unwrap();
+        assert!(p.design.variant.is_spec() && p.design.end_tangent_deg.is_none() && p.scenes.cap_load);
+        let echo = toml::to_string(&p).unwrap();
+        assert!(!echo.contains("variant") && !echo.contains("end_tangent") && !echo.contains("cap_load"), "{echo}");
+        let v = p.validate().unwrap();
+        assert!(v.geometry.design.variant.is_spec() && v.geometry.act.profile.gamma.is_none());
+        assert!(p.scene_options(&v).cap_load);
+        // set: parsed, validated and passed on
+        let p = Problem::from_str_with(
+            BASE,
+            "t",
+            &["design.variant=\"outward+tips-on-r\"".into(), "design.end_tangent_deg=8".into(), "scenes.cap_load=false".into()],
+        )
+        .unwrap();
+        assert_eq!(p.design.variant.name(), "tips-on-r+outward");
+        let v = p.validate().unwrap();
+        assert_eq!(v.geometry.design.variant, p.design.variant);
+        assert_eq!(v.geometry.design.end_tangent_deg(), Some(8.0));
+        assert!(v.geometry.act.profile.gamma.is_some());
+        assert!(!p.scene_options(&v).cap_load);
+        let echo = toml::to_string(&p).unwrap();
+        assert!(echo.contains("variant = \"tips-on-r+outward\"") && echo.contains("cap_load = false"), "{echo}");
+        // a bare word works through --set too
+        let p = Problem::from_str_with(BASE, "t", &["design.variant=twist-first".into()]).unwrap();
+        assert_eq!(p.design.variant.name(), "twist-first");
+    }
+
+    #[test]
+    fn bad_variant_names_the_field_and_lists_the_valid_values() {
+        let e = err(BASE, &["design.variant=\"inward\""]);
+        assert!(e.starts_with("t: design.variant:") && e.contains("'inward'"), "{e}");
+        for name in crate::geometry::variant::variant_names() {
+            assert!(e.contains(&format!("\"{name}\"")), "{e} lacks {name}");
+        }
+        assert_eq!(e.lines().count(), 1, "{e}");
+        let e = err(BASE, &["design.variant=\"tips-on-r+midpoint-centres\""]);
+        assert!(e.contains("design.variant") && e.contains("section reading"), "{e}");
+        let e = err(BASE, &["design.end_tangent_deg=75"]);
+        assert!(e.starts_with("design.end_tangent_deg = 75") && e.contains("[-30, 60] deg"), "{e}");
+        // beyond the profile's existence at this l (12 mm: about 39.8°)
+        let e = err(BASE, &["design.end_tangent_deg=45"]);
+        assert!(e.starts_with("design.end_tangent_deg = 45") && e.contains("l_mm = 12") && e.contains("end arcs"), "{e}");
+        let e = err(BASE, &["scenes.cap_load=\"no\""]);
+        assert!(e.contains("scenes.cap_load"), "{e}");
     }
 
     #[test]

@@ -2,8 +2,12 @@
 //!
 //! Every scene has the bottom end face fixed, the top end face tied to a rigid cap (reference
 //! point on the axis at z = L), and the cavity pressure acting on the inner wall and — through the
-//! closed-cavity formulation of the solver — on the cap (force p·A_in). The scenes differ only in
-//! which cap DOFs are free:
+//! closed-cavity formulation of the solver — on the cap (force p·A_in). With
+//! [`SceneOptions::cap_load`] = false the cap carries no pressure (the pressure acts on the
+//! lateral wall only, as on an open tube whose ends are merely tied to plates): the solver
+//! removes the cap's share p·A_cap from the cap's axial translation (a dead load in z, exact while
+//! the cap stays normal to z; see `twistopt_solver::surface`). The scenes differ only in which
+//! cap DOFs are free:
 //!
 //! | scene | axial translation | rotation about z | output |
 //! |---|---|---|---|
@@ -103,6 +107,10 @@ pub struct SceneOptions {
     pub steps: StepOptions,
     /// Keep the nodal displacements of every recorded step (for VTU time series).
     pub keep_fields: bool,
+    /// The cavity pressure also pushes on the cap (default true, the closed-cavity model); false =
+    /// on the lateral wall only. It changes nothing where the cap's axial translation is held
+    /// (pure-twist scenes) except the axial reaction.
+    pub cap_load: bool,
 }
 
 impl SceneOptions {
@@ -115,6 +123,7 @@ impl SceneOptions {
             ballooning_limit_mm: 1.15 * R0_ENVELOPE,
             steps: StepOptions { initial: 0.25, max: 0.5, min: 1e-2, ..StepOptions::default() },
             keep_fields: false,
+            cap_load: true,
         }
     }
 }
@@ -227,7 +236,12 @@ impl SceneModel {
         }
         let cavity = mesh.face_sets["cavity"].clone();
         let cavity_nodes = mesh.node_sets["cavity"].clone();
-        let model = Model::new(mesh, opts.formulation, opts.material, &cons, Some(&cavity))?;
+        let mut model = Model::new(mesh, opts.formulation, opts.material, &cons, Some(&cavity))?;
+        if !opts.cap_load {
+            if let Some(c) = model.cavity.as_mut() {
+                c.cap_load = false;
+            }
+        }
         let rotation_slot = match model.dofs.body_dofs[0][5] {
             BodyDof::Presc(s) => Some(s),
             BodyDof::Free(_) => None,

@@ -147,7 +147,7 @@ impl Grid {
             values.insert(a.name.clone(), a.values[(rem % n) as usize]);
             rem /= n;
         }
-        Design { values }
+        Design { values, variant: Default::default() }
     }
 
     /// Check the axes against the design space: every parameter exactly once, finite values,
@@ -326,8 +326,9 @@ pub struct SweepConfig {
 }
 
 /// The problem file's text → (problem without `[sweep]`, the `[sweep]` table if any), with
-/// `--set` overrides applied (they may address `sweep.*` too). A missing `[design]` is filled
-/// with a placeholder (the sweep's grid gives the designs).
+/// `--set` overrides applied (they may address `sweep.*` too). A missing `[design]` (or missing
+/// r/l/α in it) is filled with a placeholder (the sweep's grid gives the designs); its
+/// `variant` and optional parameters (`end_tangent_deg`) apply to every grid design.
 pub fn load_problem(path: &Path, overrides: &[String]) -> Result<(Problem, Option<toml::Table>)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read problem file {}", path.display()))?;
     problem_from_str(&text, &path.display().to_string(), overrides)
@@ -351,13 +352,13 @@ pub fn problem_from_str(text: &str, origin: &str, overrides: &[String]) -> Resul
         Some(toml::Value::Table(t)) => Some(t),
         Some(_) => bail!("{origin}: sweep must be a section [sweep]"),
     };
-    if !table.contains_key("design") {
-        let d = DesignSpace::actuator();
-        let mut t = toml::Table::new();
-        for p in &d.params {
-            t.insert(p.name.clone(), toml::Value::Float(p.min));
+    // the grid gives r, l, α: fill them in (a [design] section may still carry the geometry
+    // variant and optional parameters such as end_tangent_deg, applied to every grid design)
+    let design = table.entry("design").or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(t) = design.as_table_mut() {
+        for p in &DesignSpace::actuator().params {
+            t.entry(p.name.clone()).or_insert(toml::Value::Float(p.min));
         }
-        table.insert("design".into(), toml::Value::Table(t));
     }
     let merged = toml::to_string(&table).map_err(|e| anyhow!("{origin}: {e}"))?;
     let problem = Problem::from_str_with(&merged, origin, &[])?;
@@ -384,14 +385,33 @@ impl SweepConfig {
         Ok(SweepConfig { problem, grid, shard, p_max_kpa })
     }
 
-    /// The effective problem as JSON without the design (and without output switches).
+    /// The effective problem as JSON without the design (and without output switches); a
+    /// non-spec geometry variant or an optional design parameter is kept as `geometry`.
     pub fn problem_json(&self) -> Value {
         let mut p = serde_json::to_value(&self.problem).unwrap_or(Value::Null);
         if let Some(o) = p.as_object_mut() {
             o.remove("design");
             o.remove("output");
+            let d = &self.problem.design;
+            if !d.variant.is_spec() || d.end_tangent_deg.is_some() {
+                let mut g = serde_json::Map::new();
+                g.insert("variant".into(), json!(d.variant.name()));
+                if let Some(e) = d.end_tangent_deg {
+                    g.insert("end_tangent_deg".into(), json!(e));
+                }
+                o.insert("geometry".into(), Value::Object(g));
+            }
         }
         p
+    }
+
+    /// Design `index` of the grid with the problem's geometry variant and optional parameters.
+    pub fn design(&self, index: u64) -> Design {
+        let d = self.grid.design(index).with_variant(self.problem.design.variant);
+        match self.problem.design.end_tangent_deg {
+            Some(g) => d.with_end_tangent(g),
+            None => d,
+        }
     }
 
     /// Mesh size and element kind.
@@ -897,7 +917,7 @@ pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(
     let n = cfg.grid.len();
     let pending: Vec<(u64, Design)> = (0..n)
         .filter(|i| cfg.shard.contains(*i))
-        .map(|i| (i, cfg.grid.design(i)))
+        .map(|i| (i, cfg.design(i)))
         .filter(|(i, d)| !done.contains(&design_id(*i, d)))
         .collect();
     let shard_size = cfg.shard.size(n);

@@ -157,7 +157,7 @@ fn ccx_failure_is_a_status() {
     let ccx = require_ccx();
     let g = ActuatorGeometry::new(&Design::paper_example(), RangePolicy::TableI).unwrap();
     let mat = NeoHookean::with_ratio(0.34, 300.0).unwrap().into();
-    let opts = DeckOptions { element: CcxElement::C3D20R, increments: Increments { initial: 1.0, min: 1.0, max: 1.0, max_count: 1 } };
+    let opts = DeckOptions { element: CcxElement::C3D20R, increments: Increments { initial: 1.0, min: 1.0, max: 1.0, max_count: 1 }, ..DeckOptions::default() };
     let deck = build_deck(&g, &MeshSpec::parse("12x4x1").unwrap(), &mat, SceneKind::Free, &[300.0], &opts).unwrap();
     let d = out_dir("crosscheck-fail");
     let run = run_deck(&ccx, &deck, &d, "free", 1).unwrap();

@@ -1,7 +1,8 @@
 //! Adjoint sensitivities of output functionals at a converged equilibrium.
 //!
 //! At an equilibrium r(q; s) = 0 of a hyperelastic model with conservative loads (the cavity
-//! pressure is conservative: r contains −p ∂V/∂x), the total derivative of a functional J(q; s)
+//! pressure is conservative: r contains −p ∂V/∂x, and +p·A_cap on rigid caps that carry no
+//! pressure, a dead load whose area follows the reference shape), the total derivative of a functional J(q; s)
 //! with respect to any input s — a reference-coordinate field (shape), the pressure, a material
 //! parameter, a prescribed value — is
 //!
@@ -233,6 +234,14 @@ pub fn evaluate<D: Scalar>(model: &Model, inp: &Inputs<D>, loads: &Loads) -> Res
         for k in 0..3 {
             if let BodyDof::Free(i) = dofs.body_dofs[b][k] {
                 r[i] -= fb[k];
+            }
+        }
+    }
+    // caps without pressure (as in Model::assemble; the areas follow the reference shape)
+    if let Some(cav) = model.cavity.as_ref().filter(|c| !c.cap_load) {
+        for (b, area) in surface::rigid_cap_areas(cav, dofs, x0).into_iter().enumerate() {
+            if let BodyDof::Free(i) = dofs.body_dofs[b][2] {
+                r[i] += inp.pressure * area;
             }
         }
     }
@@ -622,6 +631,106 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The closed-end inflation slice of [`crate::verify`] with the top cap carrying no pressure.
+    fn open_slice() -> crate::verify::InflationSlice {
+        let mut s = crate::verify::inflation_slice(Formulation::standard(ElementKind::Hex27), 4, 2, 2.0, 100.0).unwrap();
+        s.model.cavity.as_mut().unwrap().cap_load = false;
+        s
+    }
+
+    #[test]
+    fn caps_without_pressure_remove_exactly_p_times_the_cap_area() {
+        let mut s = crate::verify::inflation_slice(Formulation::standard(ElementKind::Hex27), 4, 2, 2.0, 100.0).unwrap();
+        let n = s.model.n_reduced();
+        let q: Vec<f64> = (0..n).map(|i| 1e-2 * ((i as f64) * 0.37).sin()).collect();
+        let mut l = Loads::zero(&s.model);
+        l.pressure = 0.03;
+        let on = s.model.assemble(&q, &l, true).unwrap();
+        s.model.cavity.as_mut().unwrap().cap_load = false;
+        let off = s.model.assemble(&q, &l, true).unwrap();
+        let areas = crate::surface::rigid_cap_areas(s.model.cavity.as_ref().unwrap(), &s.model.dofs, &s.model.mesh.nodes);
+        // the quarter disc of radius a = 17 bounded by the quadratic inner arc
+        let exact = std::f64::consts::PI * 17.0 * 17.0 / 4.0;
+        assert!((areas[0] - exact).abs() < 2e-3 * exact, "cap area {} vs {exact}", areas[0]);
+        let BodyDof::Free(iz) = s.model.dofs.body_dofs[0][2] else { panic!("free z") };
+        for i in 0..n {
+            let d = off.r[i] - on.r[i];
+            let expect = if i == iz { l.pressure * areas[0] } else { 0.0 };
+            assert!((d - expect).abs() < 1e-12 * (1.0 + expect.abs()), "dof {i}: {d} vs {expect}");
+        }
+        assert_eq!(on.k, off.k, "the removed cap force is a dead load: same tangent");
+        // the generic evaluation (adjoint residual) agrees with the assembly
+        let inp = Inputs { x0: &s.model.mesh.nodes, q: &q, pressure: l.pressure, presc: &l.presc, params: &s.model.params };
+        let st = evaluate(&s.model, &inp, &l).unwrap();
+        let sc = off.r.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        assert!(st.r.iter().zip(&off.r).all(|(a, b)| (a - b).abs() <= 1e-12 * sc));
+        // the unit-pressure load is ∂V/∂q less the cap area on the cap's DOF
+        let unit = s.model.unit_pressure_load(&off.dvol);
+        assert!((off.dvol[iz] - unit[iz] - areas[0]).abs() < 1e-12 * areas[0]);
+    }
+
+    #[test]
+    fn adjoint_matches_central_differences_without_cap_load() {
+        let s = open_slice();
+        let m = &s.model;
+        let mut l = Loads::zero(m);
+        l.pressure = 0.02;
+        let (q, fac) = solve(m, &vec![0.0; m.n_reduced()], &l);
+        let functionals = vec![Functional::BodyDof { body: 0, dof: 2 }, Functional::CavityVolume];
+        // a radial bulge that changes the cap area, and the pressure
+        let bulge: Vec<[f64; 3]> = m.mesh.nodes.iter().map(|x| [0.03 * x[0] * (1.0 + 0.1 * x[2]), 0.03 * x[1] * (1.0 + 0.1 * x[2]), 0.0]).collect();
+        let dirs = vec![
+            Direction { name: "shape".into(), dx0: Some(bulge.clone()), ..Default::default() },
+            Direction { name: "p".into(), dpressure: 1.0, ..Default::default() },
+        ];
+        let sens = sensitivities(m, &q, &l, &fac, &functionals, &dirs).unwrap();
+        let h = 1e-6;
+        for (k, dir) in dirs.iter().enumerate() {
+            let eval = |t: f64| {
+                let mut sp = open_slice();
+                if let Some(d) = &dir.dx0 {
+                    for (x, dx) in sp.model.mesh.nodes.iter_mut().zip(d) {
+                        for i in 0..3 {
+                            x[i] += t * dx[i];
+                        }
+                    }
+                }
+                let mut lp = l.clone();
+                lp.pressure += t * dir.dpressure;
+                let (qp, _) = solve(&sp.model, &q, &lp);
+                let inp = Inputs { x0: &sp.model.mesh.nodes, q: &qp, pressure: lp.pressure, presc: &lp.presc, params: &sp.model.params };
+                let st = evaluate(&sp.model, &inp, &lp).unwrap();
+                functionals.iter().map(|f| f.eval(&sp.model, &st).unwrap()).collect::<Vec<f64>>()
+            };
+            let (jp, jm) = (eval(h), eval(-h));
+            for i in 0..functionals.len() {
+                let fd = (jp[i] - jm[i]) / (2.0 * h);
+                let ad = sens.gradients[i][k];
+                assert!((fd - ad).abs() <= 1e-5 * fd.abs().max(1e-8), "functional {i} dir {}: adjoint {ad} fd {fd}", dir.name);
+            }
+        }
+    }
+
+    #[test]
+    fn volume_control_without_cap_load_meets_pressure_control() {
+        let s = open_slice();
+        let m = &s.model;
+        let mut l = Loads::zero(m);
+        l.pressure = 0.02;
+        let (q, _) = solve(m, &vec![0.0; m.n_reduced()], &l);
+        let v = m.assemble(&q, &l, false).unwrap().volume;
+        let r = crate::solve::follow_volume(m, &vec![0.0; m.n_reduced()], 0.0, &Loads::zero(m), v, &crate::solve::StepOptions::default(), |_| None);
+        assert_eq!(r.status, crate::solve::PathStatus::Completed);
+        assert!((r.pressure - 0.02).abs() < 1e-7, "pressure {} vs 0.02", r.pressure);
+        // the open tube (no end force) shortens where the closed one lengthens
+        let a = m.assemble(&q, &l, false).unwrap();
+        let (_, lz_open) = s.stretches(&a);
+        let closed = crate::verify::inflation_slice(Formulation::standard(ElementKind::Hex27), 4, 2, 2.0, 100.0).unwrap();
+        let (qc, _) = solve(&closed.model, &vec![0.0; closed.model.n_reduced()], &l);
+        let (_, lz_closed) = closed.stretches(&closed.model.assemble(&qc, &l, false).unwrap());
+        assert!(lz_open < 1.0 && lz_closed > lz_open, "λz open {lz_open}, closed {lz_closed}");
     }
 
     fn constraints_of(m: &Model) -> Constraints {

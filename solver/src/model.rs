@@ -317,6 +317,16 @@ impl Model {
         // reduce the residual (and the volume gradient)
         let mut r = self.reduce_full(&kin, &r_full);
         let dvol = if gvol_full.is_empty() { Vec::new() } else { self.reduce_full(&kin, &gvol_full) };
+        // caps without pressure: remove each rigid cap's share p·A_cap (surface module docs)
+        if let Some(cav) = self.cavity.as_ref().filter(|c| !c.cap_load) {
+            if loads.pressure != 0.0 {
+                for (b, area) in surface::rigid_cap_areas(cav, &self.dofs, x0).into_iter().enumerate() {
+                    if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][2] {
+                        r[i] += loads.pressure * area;
+                    }
+                }
+            }
+        }
         // dead forces on rigid-body reference points
         for (b, fb) in loads.body_forces.iter().enumerate() {
             for k in 0..3 {
@@ -367,6 +377,23 @@ impl Model {
             u,
             kin,
         })
+    }
+
+    /// The reduced load of a unit cavity pressure: ∂V/∂q (`dvol` of an assembly), less each rigid
+    /// cap's area on its body's free z translation when the caps carry no pressure
+    /// ([`Cavity::cap_load`]).
+    pub fn unit_pressure_load(&self, dvol: &[f64]) -> Vec<f64> {
+        let mut l = dvol.to_vec();
+        if let Some(cav) = self.cavity.as_ref().filter(|c| !c.cap_load) {
+            for (b, area) in surface::rigid_cap_areas(cav, &self.dofs, &self.mesh.nodes).into_iter().enumerate() {
+                if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][2] {
+                    if let Some(v) = l.get_mut(i) {
+                        *v -= area;
+                    }
+                }
+            }
+        }
+        l
     }
 
     /// (∂u/∂q)ᵀ v for a full nodal vector v (3 per node) at the kinematics `kin`: reduces a

@@ -407,13 +407,14 @@ pub fn factor_converged(model: &Model, a: &Assembled) -> Result<Factor, SolveErr
 }
 
 /// Newton's method under volume control: the cavity pressure p is an unknown and the cavity volume
-/// is held at `v_target` (bordered system). With g = ∂V/∂q (the reduced load of a unit pressure,
-/// so r = f_int − p g − f_ext) each iteration solves
+/// is held at `v_target` (bordered system). With g = ∂V/∂q and ℓ the reduced load of a unit
+/// pressure (ℓ = g, or g less the caps' share when the caps carry no pressure; r = f_int − p ℓ −
+/// f_ext) each iteration solves
 ///
-///   K Δq − g Δp = −r,   gᵀ Δq = V_target − V(q),
+///   K Δq − ℓ Δp = −r,   gᵀ Δq = V_target − V(q),
 ///
 /// by two solves with one LU factorisation of K (which is indefinite past a pressure maximum):
-/// K a = −r, K b = g, Δp = (V_target − V − gᵀa)/(gᵀb), Δq = a + Δp b. `q` and `p` are updated in
+/// K a = −r, K b = ℓ, Δp = (V_target − V − gᵀa)/(gᵀb), Δq = a + Δp b. `q` and `p` are updated in
 /// place on success and restored on failure. `loads.pressure` is ignored.
 pub fn newton_volume(
     model: &Model,
@@ -486,7 +487,9 @@ pub fn newton_volume(
             Err(_) => return fail(q, p, NewtonFailure::Divergence),
         };
         let neg: Vec<f64> = a.r.iter().map(|v| -v).collect();
-        let (da, db) = match (fac.solve(&neg), fac.solve(&a.dvol)) {
+        // the load of a unit pressure (∂V/∂q, less the caps' share when they carry no pressure)
+        let unit = model.unit_pressure_load(&a.dvol);
+        let (da, db) = match (fac.solve(&neg), fac.solve(&unit)) {
             (Ok(x), Ok(y)) => (x, y),
             _ => return fail(q, p, NewtonFailure::Divergence),
         };

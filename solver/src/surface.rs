@@ -12,6 +12,17 @@
 //! volume of the full model, of a 1/n sector (V_sector = V/n) and of symmetry-plane slices.
 //! A cavity pressure p is then the conservative load p ∂V/∂x with the symmetric load stiffness
 //! p ∂²V/∂x², and the force it puts on a rigid cap is p·A_cap.
+//!
+//! **Caps without pressure** ([`Cavity::cap_load`] = false): the pressure acts on the wall faces
+//! only. For a cap whose boundary ring is carried by a rigid body (and stays normal to z — the
+//! body translates and rotates about z), the cap's share of p ∂V/∂q is exactly p·A_cap on the
+//! body's z translation (δV = ∫_wall δx·n + ∫_cap δx·n, and a rigid cap moving in its own plane
+//! adds nothing), so removing it leaves the consistent follower load of the wall. The model adds
+//! +p·A_cap to the residual of each such body's free z translation, with A_cap the signed area
+//! ([`rigid_cap_areas`]) of the ring in the reference configuration (rigid motions keep it);
+//! the load stays conservative and the tangent unchanged. Caps on prescribed nodes only move
+//! reactions. If the body tilts (lateral rotations free) the removed force keeps the z direction,
+//! an error of the order of the tilt angle.
 
 use crate::mesh::{Face, Mesh};
 use crate::scalar::{cross, dot, Scalar};
@@ -29,6 +40,9 @@ pub struct Cavity {
     pub face_nodes: Vec<Vec<usize>>,
     pub edges: Vec<Edge>,
     pub rule: FaceRule,
+    /// whether the pressure also acts on the planar caps closing the cavity (default true);
+    /// false = on the wall faces only (see the module docs)
+    pub cap_load: bool,
 }
 
 impl Cavity {
@@ -55,7 +69,7 @@ impl Cavity {
             })
             .map(Edge)
             .collect();
-        Cavity { faces: faces.to_vec(), face_nodes, edges, rule: FaceRule::new(nf, 3) }
+        Cavity { faces: faces.to_vec(), face_nodes, edges, rule: FaceRule::new(nf, 3), cap_load: true }
     }
 }
 
@@ -204,21 +218,49 @@ pub fn edge_volume_hessian(x: &[[f64; 3]], h: &mut [f64]) {
 
 /// Signed area enclosed by an edge chain projected on the xy-plane: ½ ∫ (x dy − y dx).
 pub fn edge_area(x: &[[f64; 3]]) -> f64 {
+    edge_area_generic(x)
+}
+
+/// [`edge_area`] for any scalar (exact for linear and quadratic edges: 3-point Gauss).
+pub fn edge_area_generic<D: Scalar>(x: &[[D; 3]]) -> D {
     let (gp, gw) = gauss_1d(3);
     let ne = x.len();
-    let mut a = 0.0;
+    let mut a = D::zero();
     for (s, w) in gp.iter().zip(&gw) {
         let (n, dn) = edge_shape(ne, *s);
-        let (mut p, mut t) = ([0.0; 2], [0.0; 2]);
+        let (mut p, mut t) = ([D::zero(); 2], [D::zero(); 2]);
         for k in 0..ne {
             for i in 0..2 {
                 p[i] += x[k][i] * n[k];
                 t[i] += x[k][i] * dn[k];
             }
         }
-        a += 0.5 * w * (p[0] * t[1] - p[1] * t[0]);
+        a += (p[0] * t[1] - p[1] * t[0]) * (0.5 * w);
     }
     a
+}
+
+/// Signed areas of the cavity caps carried by rigid bodies, one per body of `dofs`: ½∮(x dy − y dx)
+/// over the cavity's boundary edges whose nodes all have their z component tied to that body
+/// (reference coordinates `x0`; positive for a cap whose outward normal — out of the cavity — is
+/// +z, i.e. the same sign convention as the cap term of the volume). Zero for bodies that carry no
+/// cap. Edges in planes through the z axis (cut faces of a sector) contribute nothing, so a sector
+/// model gets its sector of the cap.
+pub fn rigid_cap_areas<D: Scalar>(cav: &Cavity, dofs: &crate::dofmap::DofMap, x0: &[[D; 3]]) -> Vec<D> {
+    use crate::dofmap::Comp;
+    let mut areas = vec![D::zero(); dofs.bodies.len()];
+    for e in &cav.edges {
+        let body = |n: usize| match dofs.comps[3 * n + 2] {
+            Comp::Rigid(b) => Some(b as usize),
+            _ => None,
+        };
+        let Some(b) = body(e.0[0]) else { continue };
+        if e.0.iter().all(|&n| body(n) == Some(b)) {
+            let x: Vec<[D; 3]> = e.0.iter().map(|&n| x0[n]).collect();
+            areas[b] += edge_area_generic(&x);
+        }
+    }
+    areas
 }
 
 /// Cavity volume of the given configuration (positions of all nodes).

@@ -104,11 +104,14 @@ impl Default for Increments {
 pub struct DeckOptions {
     pub element: CcxElement,
     pub increments: Increments,
+    /// apply the cap force p·A_cap (default true; false = pressure on the lateral wall only, as
+    /// `scenes.cap_load = false`)
+    pub cap_load: bool,
 }
 
 impl Default for DeckOptions {
     fn default() -> Self {
-        DeckOptions { element: CcxElement::C3D20R, increments: Increments::default() }
+        DeckOptions { element: CcxElement::C3D20R, increments: Increments::default(), cap_load: true }
     }
 }
 
@@ -283,8 +286,12 @@ pub fn build_deck(
         for lab in &labels {
             let _ = writeln!(w, "CAVITY_{lab}, P{}, {:.12e}", &lab[1..], pm);
         }
-        let _ = writeln!(w, "** cap force p*A_cap, A_cap = {cap_area_mm2:.9} mm^2");
-        let _ = writeln!(w, "*CLOAD\n{ref_node}, 3, {:.12e}", pm * cap_area_mm2);
+        if opts.cap_load {
+            let _ = writeln!(w, "** cap force p*A_cap, A_cap = {cap_area_mm2:.9} mm^2");
+            let _ = writeln!(w, "*CLOAD\n{ref_node}, 3, {:.12e}", pm * cap_area_mm2);
+        } else {
+            let _ = writeln!(w, "** no cap force (scenes.cap_load = false: the pressure acts on the lateral wall only)");
+        }
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_REF}\nU");
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_ROT}\nU, RF");
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_PROBE}\nU");

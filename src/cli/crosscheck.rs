@@ -60,7 +60,7 @@ pub fn run(args: &CrosscheckArgs) -> Result<()> {
             .collect::<Result<_>>()?
     };
     let ccx = args.ccx.clone().unwrap_or_else(ccx_command);
-    let opts = DeckOptions { element, ..DeckOptions::default() };
+    let opts = DeckOptions { element, cap_load: problem.scenes.cap_load, ..DeckOptions::default() };
     crosscheck(&problem, &scenes, &opts, tw, &ccx, &args.out, |l| println!("{l}"))?;
     println!("wrote {}", args.out.join("crosscheck.json").display());
     Ok(())

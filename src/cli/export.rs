@@ -41,7 +41,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
     let element = CcxElement::parse(&args.element).map_err(|e| anyhow!("--element: {e}"))?;
     let problem = Problem::load(&args.problem, &args.set)?;
     let v = problem.validate()?;
-    let opts = DeckOptions { element, ..DeckOptions::default() };
+    let opts = DeckOptions { element, cap_load: problem.scenes.cap_load, ..DeckOptions::default() };
     let deck = build_deck(&v.geometry, &v.mesh, &v.material, scene, &v.load.targets(), &opts)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create output directory {}", args.out.display()))?;
     let path = args.out.join(format!("{}.inp", scene.name()));

@@ -51,6 +51,14 @@ pub struct GeometryArgs {
     /// offset-validity bound, any finite α) instead of the Table I box.
     #[arg(long)]
     pub extended_range: bool,
+    /// Geometry variant: "spec" (GEOMETRY.md, default) or any of tips-on-r | midpoint-centres,
+    /// outward, twist-first joined by '+' (studies/letter-calibration/VARIANTS.md).
+    #[arg(long, value_name = "NAME", default_value = "spec")]
+    pub variant: String,
+    /// Optional design parameter end_tangent_deg: the lateral profile's end-tangent angle from
+    /// the vertical in degrees (absent = the spec's vertical ends).
+    #[arg(long = "end-tangent", value_name = "DEG", allow_negative_numbers = true)]
+    pub end_tangent: Option<f64>,
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -58,7 +66,11 @@ pub struct GeometryArgs {
 
 /// Build geometry + mesh and write all outputs; returns the summary JSON.
 pub fn generate(args: &GeometryArgs) -> Result<Value> {
-    let design = Design::new(args.r, args.l, args.alpha);
+    let variant = crate::geometry::GeometryVariant::parse(&args.variant).map_err(|e| anyhow::anyhow!("--variant: {e}"))?;
+    let mut design = Design::new(args.r, args.l, args.alpha).with_variant(variant);
+    if let Some(g) = args.end_tangent {
+        design = design.with_end_tangent(g);
+    }
     let policy = if args.extended_range { RangePolicy::Extended } else { RangePolicy::TableI };
     let geom = ActuatorGeometry::new(&design, policy)?;
     let kind = match args.order {
@@ -87,7 +99,7 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     write_vtu(&dir.join("mesh.vtu"), &am.mesh, &point_data, &[DataArray::new("min_scaled_jacobian", 1, &sj)])?;
     write_stl_binary(&dir.join("outer.stl"), &outer, "outer")?;
     write_stl_binary(&dir.join("cavity.stl"), &cavity, "cavity")?;
-    let heading = format!(
+    let mut heading = format!(
         "twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}",
         args.r,
         args.l,
@@ -96,6 +108,12 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
         spec.kind,
         if spec.sector { " sector" } else { "" }
     );
+    if !variant.is_spec() {
+        heading.push_str(&format!(" variant={variant}"));
+    }
+    if let Some(g) = args.end_tangent {
+        heading.push_str(&format!(" end_tangent_deg={g}"));
+    }
     write_inp(&dir.join("mesh.inp"), &am.mesh, &heading)?;
 
     let mut v = serde_json::to_value(geom.summary())?;

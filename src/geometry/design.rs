@@ -2,10 +2,16 @@
 //!
 //! The optimiser sees a design as a list of *named* parameters (`r_mm`, `l_mm`, `alpha_deg`)
 //! described by a [`DesignSpace`]; nothing downstream depends on there being exactly three.
+//!
+//! Besides the three Table-I parameters a design may carry *optional* shape parameters of the
+//! geometry variants ([`DesignSpace::optional`]: `end_tangent_deg`) and a [`GeometryVariant`].
+//! An optional parameter that is absent takes the spec's value through the spec's code path
+//! (bit-identical); one that is present is a design parameter like the others (gradients,
+//! optimisation variables).
 
 use std::collections::BTreeMap;
 
-use super::{section_constants_f64, R_TUBE, T_WALL};
+use super::{section_constants_f64, GeometryVariant, SectionReading, R_TUBE, T_WALL};
 
 /// Name of the lobe/notch arc radius parameter (construction frame), mm.
 pub const P_R: &str = "r_mm";
@@ -13,6 +19,9 @@ pub const P_R: &str = "r_mm";
 pub const P_L: &str = "l_mm";
 /// Name of the end-to-end pre-twist parameter, degrees.
 pub const P_ALPHA: &str = "alpha_deg";
+/// Name of the optional end-tangent angle of the lateral profile (from the vertical, positive =
+/// leaning towards the axis), degrees; the spec's value is 0 (vertical ends).
+pub const P_END_TANGENT: &str = "end_tangent_deg";
 
 /// Which parameter box a design is validated against.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -80,6 +89,26 @@ impl DesignSpace {
         }
     }
 
+    /// Optional shape parameters of the geometry variants (not in Table I; absent = the spec's
+    /// value). `min`/`max` are the box they are validated against (the end tangent is also
+    /// limited by the profile's existence at the design's l, see [`super::Profile::check`]).
+    pub fn optional() -> Self {
+        DesignSpace {
+            params: vec![ParamSpec {
+                name: P_END_TANGENT.into(),
+                unit: "deg".into(),
+                description: "end-tangent angle of the lateral profile from the vertical (0 = the spec's vertical ends, > 0 leaning towards the axis)".into(),
+                min: -30.0,
+                max: 60.0,
+            }],
+        }
+    }
+
+    /// A parameter of the actuator space or of the optional space, by name.
+    pub fn lookup(name: &str) -> Option<ParamSpec> {
+        DesignSpace::actuator().get(name).cloned().or_else(|| DesignSpace::optional().get(name).cloned())
+    }
+
     pub fn names(&self) -> Vec<&str> {
         self.params.iter().map(|p| p.name.as_str()).collect()
     }
@@ -106,7 +135,7 @@ impl DesignSpace {
                 self.names().join(", ")
             )));
         }
-        Ok(Design { values: self.params.iter().zip(x).map(|(p, v)| (p.name.clone(), *v)).collect() })
+        Ok(Design { values: self.params.iter().zip(x).map(|(p, v)| (p.name.clone(), *v)).collect(), variant: GeometryVariant::default() })
     }
 
     /// Values of a design in the order of `params`.
@@ -206,10 +235,21 @@ pub fn offset_locally_valid(r: f64, l: f64) -> bool {
     super::max_convex_curvature0(&act) * (T_WALL + 0.5) < 1.0
 }
 
-/// A design: a value for every parameter of a [`DesignSpace`], by name.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// A design: a value for every parameter of a [`DesignSpace`], by name (plus any optional
+/// parameters of [`DesignSpace::optional`]), and the geometry variant.
+#[derive(Clone, Debug, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Design {
     pub values: BTreeMap<String, f64>,
+    /// the reading of the geometry (default and omitted from JSON: the spec)
+    #[serde(default, skip_serializing_if = "GeometryVariant::is_spec")]
+    pub variant: GeometryVariant,
+}
+
+/// Known names (actuator + optional) for messages.
+fn known_names() -> String {
+    let mut v: Vec<String> = DesignSpace::actuator().names().iter().map(|s| s.to_string()).collect();
+    v.extend(DesignSpace::optional().names().iter().map(|s| format!("{s} (optional)")));
+    v.join(", ")
 }
 
 impl Design {
@@ -217,20 +257,49 @@ impl Design {
     /// space (unknown or missing names are errors); ranges are checked by [`Design::validate`].
     pub fn from_pairs(pairs: &[(&str, f64)]) -> Result<Self, GeometryError> {
         let space = DesignSpace::actuator();
-        let known = space.names().join(", ");
+        let known = known_names();
         let mut values = BTreeMap::new();
         for (k, v) in pairs {
-            if space.get(k).is_none() {
+            if DesignSpace::lookup(k).is_none() {
                 return Err(GeometryError::UnknownParameter { name: k.to_string(), known });
             }
             values.insert(k.to_string(), *v);
         }
         for p in &space.params {
             if !values.contains_key(&p.name) {
-                return Err(GeometryError::MissingParameter { name: p.name.clone(), known });
+                return Err(GeometryError::MissingParameter { name: p.name.clone(), known: space.names().join(", ") });
             }
         }
-        Ok(Design { values })
+        Ok(Design { values, variant: GeometryVariant::default() })
+    }
+
+    /// The same design with another geometry variant.
+    pub fn with_variant(mut self, variant: GeometryVariant) -> Self {
+        self.variant = variant;
+        self
+    }
+
+    /// The same design with the optional end-tangent angle set (degrees).
+    pub fn with_end_tangent(mut self, deg: f64) -> Self {
+        self.values.insert(P_END_TANGENT.to_string(), deg);
+        self
+    }
+
+    /// The end-tangent angle (degrees) if the design carries it.
+    pub fn end_tangent_deg(&self) -> Option<f64> {
+        self.values.get(P_END_TANGENT).copied()
+    }
+
+    /// The names of the parameters this design is differentiated with respect to: the actuator's
+    /// (Table I) and the optional ones the design carries.
+    pub fn parameter_names(&self) -> Vec<String> {
+        let mut v: Vec<String> = DesignSpace::actuator().names().iter().map(|s| s.to_string()).collect();
+        for p in DesignSpace::optional().params {
+            if self.values.contains_key(&p.name) {
+                v.push(p.name);
+            }
+        }
+        v
     }
 
     /// Convenience constructor for the actuator's three parameters.
@@ -239,7 +308,7 @@ impl Design {
         values.insert(P_R.to_string(), r_mm);
         values.insert(P_L.to_string(), l_mm);
         values.insert(P_ALPHA.to_string(), alpha_deg);
-        Design { values }
+        Design { values, variant: GeometryVariant::default() }
     }
 
     /// The letter's example design r = 5√3, l = 10, α = 60°.
@@ -248,10 +317,14 @@ impl Design {
     }
 
     pub fn get(&self, name: &str) -> Result<f64, GeometryError> {
-        self.values.get(name).copied().ok_or_else(|| GeometryError::MissingParameter {
-            name: name.to_string(),
-            known: DesignSpace::actuator().names().join(", "),
-        })
+        if let Some(v) = self.values.get(name) {
+            return Ok(*v);
+        }
+        if name == P_END_TANGENT {
+            // absent optional parameter: the spec's value
+            return Ok(0.0);
+        }
+        Err(GeometryError::MissingParameter { name: name.to_string(), known: DesignSpace::actuator().names().join(", ") })
     }
 
     pub fn r_mm(&self) -> f64 {
@@ -264,9 +337,10 @@ impl Design {
         self.values.get(P_ALPHA).copied().unwrap_or(f64::NAN)
     }
 
-    /// The same design with one parameter changed (name must exist).
+    /// The same design with one parameter changed (name must exist; an optional parameter may
+    /// be set on a design that does not carry it yet).
     pub fn with(&self, name: &str, value: f64) -> Result<Self, GeometryError> {
-        if !self.values.contains_key(name) {
+        if !self.values.contains_key(name) && DesignSpace::optional().get(name).is_none() {
             return Err(GeometryError::UnknownParameter {
                 name: name.to_string(),
                 known: self.values.keys().cloned().collect::<Vec<_>>().join(", "),
@@ -280,11 +354,48 @@ impl Design {
     /// Check names, finiteness and ranges. Returns (r, l, α in degrees).
     pub fn validate(&self, policy: RangePolicy) -> Result<(f64, f64, f64), GeometryError> {
         let space = DesignSpace::actuator();
-        let known = space.names().join(", ");
         for k in self.values.keys() {
-            if space.get(k).is_none() {
-                return Err(GeometryError::UnknownParameter { name: k.clone(), known });
+            if DesignSpace::lookup(k).is_none() {
+                return Err(GeometryError::UnknownParameter { name: k.clone(), known: known_names() });
             }
+        }
+        if let Some(g) = self.end_tangent_deg() {
+            let p = DesignSpace::optional().get(P_END_TANGENT).expect("optional parameter").clone();
+            let range = range_text(p.min, p.max, &p.unit);
+            if !g.is_finite() {
+                return Err(GeometryError::NotFinite { name: P_END_TANGENT.into(), value: g, range });
+            }
+            if g < p.min || g > p.max {
+                return Err(GeometryError::OutOfRange { name: P_END_TANGENT.into(), value: g, range, hint: String::new() });
+            }
+        }
+        if !self.variant.is_spec() && self.variant.section != SectionReading::Triangle && policy == RangePolicy::Extended {
+            // the r-extension below 5√3 is the spec section's own analysis (GEOMETRY.md §2.2);
+            // the other readings keep r in the Table-I range (l and α are extended)
+            let p = space.get(P_R).expect("known parameter").clone();
+            let r = self.get(P_R)?;
+            let range = range_text(p.min, p.max, &p.unit);
+            if !r.is_finite() {
+                return Err(GeometryError::NotFinite { name: P_R.into(), value: r, range });
+            }
+            let tol = 1e-9 * p.max;
+            if r < p.min - tol || r > p.max + tol {
+                return Err(GeometryError::OutOfRange {
+                    name: P_R.into(),
+                    value: r,
+                    range,
+                    hint: format!(" (extended range with geometry variant '{}': r keeps the Table-I range)", self.variant),
+                });
+            }
+            let l = self.get(P_L)?;
+            let a = self.get(P_ALPHA)?;
+            if !l.is_finite() || !(l > 0.0 && l <= R_TUBE + 1e-9) {
+                return Err(GeometryError::OutOfRange { name: P_L.into(), value: l, range: "(0, 20] mm".into(), hint: " (extended range)".into() });
+            }
+            if !a.is_finite() {
+                return Err(GeometryError::NotFinite { name: P_ALPHA.into(), value: a, range: "(-inf, +inf) deg".into() });
+            }
+            return Ok((r.min(R_TUBE), l.min(R_TUBE), a));
         }
         let r = self.get(P_R)?;
         let l = self.get(P_L)?;

@@ -35,6 +35,33 @@ pub fn versinc<D: Scalar>(x: D) -> D {
     h.sin() * sinc(h)
 }
 
+/// atan2(y, x) whose derivative part stays finite at x = 0 (num-dual's `atan2` differentiates
+/// atan(y/x)): atan of the ratio of magnitude ≤ 1, with the quadrant added.
+pub fn atan2<D: Scalar>(y: D, x: D) -> D {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let (yr, xr) = (y.re(), x.re());
+    if xr.abs() >= yr.abs() {
+        if xr == 0.0 {
+            return cst(0.0);
+        }
+        let a = (y / x).atan();
+        if xr > 0.0 {
+            a
+        } else if yr >= 0.0 {
+            a + PI
+        } else {
+            a - PI
+        }
+    } else {
+        let a = (x / y).atan();
+        if yr > 0.0 {
+            -a + FRAC_PI_2
+        } else {
+            -a - FRAC_PI_2
+        }
+    }
+}
+
 /// 2-vector helpers.
 #[inline]
 pub fn dot2<D: Scalar>(a: [D; 2], b: [D; 2]) -> D {
@@ -110,5 +137,17 @@ mod tests {
         }
         assert_eq!(sinc(0.0), 1.0);
         assert_eq!(versinc(0.0), 0.0);
+    }
+
+    #[test]
+    fn atan2_matches_std_and_differentiates_at_x_zero() {
+        for &(y, x) in &[(1.0f64, 2.0f64), (2.0, 1.0), (2.0, -1.0), (-0.5, -3.0), (-2.0, 0.3), (1.0, 0.0), (-1.0, 0.0), (0.0, -2.0)] {
+            assert!((atan2(y, x) - y.atan2(x)).abs() < 1e-15, "({y}, {x})");
+            // d/dy atan2 = x/(x²+y²), d/dx = −y/(x²+y²)
+            let dy = atan2(Dual64::new(y, 1.0), Dual64::from(x)).eps;
+            let dx = atan2(Dual64::from(y), Dual64::new(x, 1.0)).eps;
+            let q = x * x + y * y;
+            assert!((dy - x / q).abs() < 1e-14 && (dx + y / q).abs() < 1e-14, "({y}, {x}): {dy} {dx}");
+        }
     }
 }

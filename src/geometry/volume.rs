@@ -14,11 +14,18 @@
 //!   junctions and the profile junctions z = L/4, 3L/4, so tensor Gauss–Legendre on each patch
 //!   converges spectrally; 3-fold symmetry reduces the work to one 120° sector. The partial
 //!   derivatives come from forward-mode dual numbers.
+//!
+//! Geometry variants: the designed surface always encloses (A/T²)∫ρ²dz (the twist rotates
+//! horizontal slices); it is the outer surface for an inward offset and the cavity for an outward
+//! one. The offset surface's volume is the surface integral above, over the wall as
+//! [`Actuator::point`] parameterises it; when the wall is trimmed by the end planes (twist before
+//! offset, or a profile end tangent) the z-range of the first and last patch is
+//! [δ0(ŝ), z_J] and [L − z_J, L + δL(ŝ)] ([`Actuator::trim_shifts`]), still exact.
 
 use num_dual::Dual;
 
 use super::scalar::{cst, gauss_legendre};
-use super::{Actuator, Scalar, L_TUBE};
+use super::{Actuator, OffsetSide, Scalar, L_TUBE};
 
 /// Quadrature points per patch direction for the volume integrals.
 pub const VOLUME_QUADRATURE_POINTS: usize = 48;
@@ -27,11 +34,31 @@ fn z_patches() -> [(f64, f64); 3] {
     [(0.0, L_TUBE / 4.0), (L_TUBE / 4.0, 3.0 * L_TUBE / 4.0), (3.0 * L_TUBE / 4.0, L_TUBE)]
 }
 
-/// Outer volume (A/T²)∫ρ²dz (generic: pass a dual-number actuator for derivatives).
+/// The profile's arc patches in z (junctions at z_J, L − z_J; f64: the integrands' parameter
+/// derivatives are continuous across the junctions because the profile is C1).
+fn z_patches_of<D: Scalar>(act: &Actuator<D>) -> [(f64, f64); 3] {
+    if act.profile.gamma.is_none() {
+        return z_patches();
+    }
+    let zj = act.profile.z_junction.re();
+    [(0.0, zj), (zj, L_TUBE - zj), (L_TUBE - zj, L_TUBE)]
+}
+
+/// Outer volume (generic: pass a dual-number actuator for derivatives): the designed volume
+/// (A/T²)∫ρ²dz for an inward offset (the spec), the outer offset surface's enclosed volume for an
+/// outward one.
 pub fn outer_volume<D: Scalar>(act: &Actuator<D>) -> D {
+    match act.variant.offset {
+        OffsetSide::Inward => designed_volume(act),
+        OffsetSide::Outward => enclosed_volume(act, 0.0, VOLUME_QUADRATURE_POINTS),
+    }
+}
+
+/// Volume enclosed by the designed (lofted) surface and the end planes, (A/T²)∫ρ²dz.
+pub fn designed_volume<D: Scalar>(act: &Actuator<D>) -> D {
     let (x, w) = gauss_legendre(VOLUME_QUADRATURE_POINTS);
     let mut integral = cst::<D>(0.0);
-    for (a, b) in z_patches() {
+    for (a, b) in z_patches_of(act) {
         let h = 0.5 * (b - a);
         for (xi, wi) in x.iter().zip(&w) {
             let z = a + h * (xi + 1.0);
@@ -48,6 +75,9 @@ pub fn outer_volume<D: Scalar>(act: &Actuator<D>) -> D {
 /// result carries the derivative with respect to the seeded design parameter (the surface
 /// partials ∂X/∂ŝ, ∂X/∂z use a nested dual number).
 pub fn enclosed_volume<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
+    if act.needs_trim() || !act.variant.is_spec() {
+        return enclosed_volume_general(act, eta, n);
+    }
     let s = &act.section;
     let zero = cst::<D>(0.0);
     let one = cst::<D>(1.0);
@@ -85,9 +115,88 @@ pub fn enclosed_volume<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
     total * 3.0
 }
 
-/// Chamber volume (cavity between the inner wall and the end planes).
+/// [`enclosed_volume`] for any variant: the wall layer as [`Actuator::point`] gives it
+/// (including the twist, which does not change the volume of an untrimmed wall), over z ∈
+/// [δ0(ŝ), L + δL(ŝ)] when the wall is trimmed.
+fn enclosed_volume_general<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
+    let s = &act.section;
+    let zero = cst::<D>(0.0);
+    let one = cst::<D>(1.0);
+    let lift = |x: D| Dual::new(x, zero);
+    let ad = act.lift();
+    let (x, w) = gauss_legendre(n);
+    let fl = s.lobe_fraction();
+    let s0 = s.lobe_start_shat(0);
+    let mut patches_s = vec![(s0, s0 + fl * (1.0 / 3.0))];
+    if s.theta_n.re() > 0.0 {
+        patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
+    }
+    let eta_d = lift(cst(eta));
+    // the junctions move with the design (end tangent) and the offset layer's integrand jumps
+    // there (its z-speed involves ρ''), so the patch bounds carry the derivatives
+    let zj = act.profile.z_junction;
+    let zl = cst::<D>(L_TUBE);
+    let mut total = zero;
+    for &(sa, sb) in &patches_s {
+        let hs = (sb - sa) * 0.5;
+        for (xs, ws) in x.iter().zip(&w) {
+            let shat = sa + hs * (xs + 1.0);
+            let (d0, dl) = act.trim_shifts(shat, cst(eta));
+            for (za, zb) in [(d0, zj), (zj, zl - zj), (zl - zj, zl + dl)] {
+                let hz = (zb - za) * 0.5;
+                for (xz, wz) in x.iter().zip(&w) {
+                    let z = za + hz * (xz + 1.0);
+                    let ps = ad.point(Dual::new(shat, one), lift(z), eta_d);
+                    let pz = ad.point(lift(shat), Dual::new(z, one), eta_d);
+                    let xs_ = [ps[0].eps, ps[1].eps, ps[2].eps];
+                    let xz_ = [pz[0].eps, pz[1].eps, pz[2].eps];
+                    let nx = xs_[1] * xz_[2] - xs_[2] * xz_[1];
+                    let ny = xs_[2] * xz_[0] - xs_[0] * xz_[2];
+                    let f = (ps[0].re * nx + ps[1].re * ny) * 0.5;
+                    total += f * hs * hz * (ws * wz);
+                }
+            }
+        }
+    }
+    total * 3.0
+}
+
+/// Chamber volume (cavity between the inner wall and the end planes): the inner offset layer
+/// for an inward offset (the spec), the designed volume for an outward one.
 pub fn chamber_volume<D: Scalar>(act: &Actuator<D>) -> D {
-    enclosed_volume(act, 1.0, VOLUME_QUADRATURE_POINTS)
+    match act.variant.offset {
+        OffsetSide::Inward => enclosed_volume(act, 1.0, VOLUME_QUADRATURE_POINTS),
+        OffsetSide::Outward => designed_volume(act),
+    }
+}
+
+/// Area ½∮(x dy − y dx) of the bottom ring of wall layer `eta` (trimmed into the plane z = 0),
+/// Gauss–Legendre per section arc (the ring is analytic on each), ∂/∂ŝ by a nested dual number.
+pub fn end_ring_area<D: Scalar>(act: &Actuator<D>, eta: f64) -> D {
+    let s = &act.section;
+    let zero = cst::<D>(0.0);
+    let one = cst::<D>(1.0);
+    let lift = |x: D| Dual::new(x, zero);
+    let ad = act.lift();
+    let (x, w) = gauss_legendre(VOLUME_QUADRATURE_POINTS);
+    let fl = s.lobe_fraction();
+    let s0 = s.lobe_start_shat(0);
+    let mut patches_s = vec![(s0, s0 + fl * (1.0 / 3.0))];
+    if s.theta_n.re() > 0.0 {
+        patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
+    }
+    let eta_d = lift(cst(eta));
+    let mut total = zero;
+    for &(sa, sb) in &patches_s {
+        let hs = (sb - sa) * 0.5;
+        for (xs, ws) in x.iter().zip(&w) {
+            let shat = Dual::new(sa + hs * (xs + 1.0), one);
+            let (d0, _) = ad.trim_shifts(shat, eta_d);
+            let p = ad.point(shat, d0, eta_d);
+            total += (p[0].re * p[1].eps - p[1].re * p[0].eps) * hs * (0.5 * ws);
+        }
+    }
+    total * 3.0
 }
 
 #[cfg(test)]

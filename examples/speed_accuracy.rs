@@ -195,8 +195,11 @@ fn read_rows(path: &Path) -> Vec<Value> {
 }
 
 fn append_row(path: &Path, row: &Value) -> Result<()> {
+    // a line torn by a kill is ended first, so the new row stays a line of its own
+    let torn = std::fs::read(path).map(|b| b.last().is_some_and(|&c| c != b'\n')).unwrap_or(false);
     let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("{}", path.display()))?;
-    let mut line = serde_json::to_string(row)?;
+    let mut line = if torn { "\n".to_string() } else { String::new() };
+    line += &serde_json::to_string(row)?;
     line.push('\n');
     f.write_all(line.as_bytes())?;
     f.flush()?;

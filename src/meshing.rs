@@ -30,13 +30,17 @@ use twistopt_solver::mesh::{ElementKind, Face, Mesh, Side, HEX27_NATURAL};
 use crate::geometry::{scalar::cst, Actuator, ActuatorGeometry, GeometryError, Scalar};
 
 /// Mesh presets: (name, N_around, N_along, N_through, element kind), Hex27 (Q2/P1) in the thin
-/// wall. `fine` is 60x20x2: on the paper example it moves θ, τ by 0.14 %, 0.2 % from `default`
+/// wall, chosen by studies/speed-accuracy (`default`: θ, τ within 1 %; `sweep`: Ω within 3 %).
+/// `fine` is 60x20x2: on the paper example it moves θ, τ by 0.14 %, 0.2 % from `default`
 /// (studies/paper-example); the earlier 96x32x3 (≈ 88 k dofs on the sector) did not finish a
 /// 71 kPa ramp in 30 min on 2 cores and is still available as an explicit mesh string.
 pub const MESH_PRESETS: &[(&str, usize, usize, usize, ElementKind)] = &[
     ("coarse", 24, 8, 1, ElementKind::Hex27),
     ("default", 48, 16, 2, ElementKind::Hex27),
     ("fine", 60, 20, 2, ElementKind::Hex27),
+    // the fastest mesh with Ω within 3 % of the Richardson reference on five designs
+    // (studies/speed-accuracy): for grid sweeps
+    ("sweep", 48, 16, 1, ElementKind::Hex27),
 ];
 
 /// Errors of mesh specification and generation.

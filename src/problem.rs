@@ -38,7 +38,7 @@
 //! points = 5                    # rotations from 0 to the free rotation (1 … 50)
 //!
 //! [fidelity]                    # optional; at most one of
-//! preset = "default"            # "coarse" | "default" | "fine" (default "default")
+//! preset = "default"            # "coarse" | "default" | "fine" | "sweep" (default "default")
 //! # mesh = "48x16x2"            # N_around x N_along x N_through (Hex27)
 //!
 //! [output]                      # optional

@@ -32,7 +32,7 @@ pub struct GeometryArgs {
     /// counter-clockwise about +z).
     #[arg(long = "alpha", value_name = "DEG", allow_negative_numbers = true)]
     pub alpha: f64,
-    /// Mesh: a preset (coarse = 24x8x1, default = 48x16x2, fine = 60x20x2) or an explicit
+    /// Mesh: a preset (coarse = 24x8x1, default = 48x16x2, fine = 60x20x2, sweep = 48x16x1) or an explicit
     /// <Na>x<Nz>x<Nt> (elements around, along, through; Na a multiple of 3, Nz of 4). The same
     /// element counts are used with --order linear.
     #[arg(long, value_name = "PRESET|NAxNZxNT", default_value = "default")]

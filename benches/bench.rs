@@ -67,6 +67,83 @@ fn main() {
     if wanted("gradient") {
         gradient(&geom);
     }
+    if wanted("element_kernel") {
+        element_kernel(&geom);
+    }
+    if wanted("sweep_throughput") {
+        sweep_throughput();
+    }
+}
+
+/// Throughput of the Hex27 Q2/P1 element kernel (residual + tangent of one element, 27 Gauss
+/// points) at a loaded state: a plain function of local data, timed on one thread.
+fn element_kernel(geom: &ActuatorGeometry) {
+    use twistopt::scene::{SceneKind, SceneModel, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::element::{tangent, Formulation};
+    use twistopt_solver::material::{Hyperelastic, NeoHookean};
+    let nh = NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material");
+    let opts = SceneOptions::new(MeshSpec::preset("coarse").expect("preset"), nh.into());
+    let sm = SceneModel::build(geom, &opts, SceneKind::Free).expect("scene");
+    let a = sm.model.assemble(&vec![0.0; sm.model.n_reduced()], &sm.loads(5.0, 0.0), false).expect("assembly");
+    let form = Formulation::standard(twistopt_solver::mesh::ElementKind::Hex27);
+    let rule = form.rule();
+    let params = nh.params();
+    let mesh = &sm.model.mesh;
+    let conn = mesh.element(0);
+    let x0: Vec<[f64; 3]> = conn.iter().map(|&n| mesh.nodes[n]).collect();
+    // a deformed state: 10 % of a smooth displacement field on top of the pressurised one
+    let u: Vec<[f64; 3]> = conn.iter().map(|&n| { let x = mesh.nodes[n]; let v = a.u[n]; [v[0] + 0.1 * x[1].sin(), v[1] + 0.05 * x[2].cos(), v[2] + 0.02 * x[0]] }).collect();
+    let nd = 3 * x0.len();
+    let mut f = vec![0.0; nd];
+    let mut k = vec![0.0; nd * nd];
+    let n = 2000;
+    let (t, tmin, tmax) = time(5, || {
+        for _ in 0..n {
+            std::hint::black_box(tangent(&form, &rule, &nh, &params, &x0, &u, &mut f, &mut k).expect("element"));
+        }
+    });
+    let per = t / n as f64;
+    println!("element_kernel Hex27 Q2/P1: {:.1} µs per element (residual + tangent), {:.0} elements/s on one thread", per * 1e6, 1.0 / per);
+    merge(
+        "element_kernel",
+        json!({
+            "description": "Hex27 Q2/P1 Neo-Hookean element: residual + 81x81 tangent at 27 Gauss points (element::tangent), one thread, median of 5 batches of 2000 calls; release build",
+            "seconds_per_element": per, "elements_per_second": 1.0 / per,
+            "batch_seconds_median_min_max": [t, tmin, tmax],
+        }),
+    );
+}
+
+/// Designs per second of `twistopt sweep` (free + blocked ramped to failure, 150 kPa cap) on
+/// 2 threads at the `sweep` preset, on a 4-design sample spanning the Table-I box.
+fn sweep_throughput() {
+    use rayon::prelude::*;
+    use twistopt::sweep::{evaluate_design, problem_from_str, Shard, SweepConfig};
+    let text = "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\n[sweep]\nr_mm = [8.660254037844386, 17.0]\nl_mm = [10, 20]\nalpha_deg = [120, 300]\n";
+    let (problem, section) = problem_from_str(text, "bench", &[]).expect("problem");
+    let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).expect("config");
+    let v = cfg.problem.validate().expect("valid");
+    let mut opts = cfg.problem.scene_options(&v);
+    opts.keep_fields = false;
+    // 4 of the 8 designs: the two diagonals of the (l, α) square at each r
+    let idx: Vec<u64> = (0..cfg.grid.len()).filter(|i| i % 3 == 0).take(4).collect();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().expect("pool");
+    let t0 = std::time::Instant::now();
+    let rows: Vec<_> = pool.install(|| idx.par_iter().map(|&i| evaluate_design(i, &cfg.grid.design(i), cfg.grid.range, &v, &opts, cfg.p_max_kpa)).collect());
+    let wall = t0.elapsed().as_secs_f64();
+    let cpu: f64 = rows.iter().map(|r| r.wall_time_s).sum();
+    let rate = rows.len() as f64 / wall;
+    let grid = 39_864.0;
+    println!("sweep_throughput (sweep preset, 2 threads): {} designs in {wall:.1} s = {rate:.4} designs/s; {:.1} s per design on one thread; full Table-I grid ≈ {:.0} h at this rate (target ≤ 1 h)", rows.len(), cpu / rows.len() as f64, grid / rate / 3600.0);
+    merge(
+        "sweep_throughput",
+        json!({
+            "description": "twistopt sweep's per-design evaluation (free + blocked ramped to failure or 150 kPa, pressure maximum under volume control) on 2 threads at the `sweep` preset (48x16x1 Hex27, sector), 4 designs (r, l, α) from {5√3, 17} × {10, 20} × {120, 300}; release build. Wall times depend on the machine's load",
+            "designs": rows.iter().map(|r| json!({"id": r.id, "status": r.status, "omega_J_m3": r.primary.omega_j_m3, "wall_time_s": r.wall_time_s})).collect::<Vec<_>>(),
+            "wall_time_s": wall, "designs_per_second": rate, "cpu_seconds_per_design": cpu / rows.len() as f64,
+            "full_table1_grid_hours_at_this_rate": grid / rate / 3600.0, "target_hours": 1.0,
+        }),
+    );
 }
 
 /// Cost of the adjoint gradient (all functionals of a scene w.r.t. r, l, α, p, μ) against the

@@ -636,21 +636,12 @@ pub fn pressure_maximum_path(
             return Ok(LimitOutcome::BelowCap { newton_iterations: iterations });
         }
         if st.pd && st.slope > 0.0 && path.last().map_or(st.p > base.pressure, |r| st.p * 1e3 > r.0.p_kpa) {
-            let mut loads = sm.loads(st.p * 1e3, 0.0);
-            loads.presc = base.presc.clone();
-            let rec = sm.record(&st.a, &loads, &st.q, iterations);
-            let over = rec.max_radius_mm > ballooning_limit_mm;
-            path.push((rec.clone(), st.a.u.clone()));
-            if over {
-                return Ok(LimitOutcome::Found(Equilibrium {
-                    q: st.q,
-                    loads,
-                    record: rec,
-                    newton_iterations: iterations,
-                    end: Some(("ballooning".into(), format!("max deformed radius exceeded the ballooning limit {ballooning_limit_mm:.2} mm"))),
-                    warm_started: false,
-                }));
+            let (_, rec) = vol_record(sm, &base, &st, iterations);
+            if rec.max_radius_mm > ballooning_limit_mm {
+                let cause = format!("max deformed radius exceeded the ballooning limit {ballooning_limit_mm:.2} mm");
+                return Ok(vol_found(sm, &base, st, iterations, ("ballooning".into(), cause), path));
             }
+            path.push((rec, st.a.u.clone()));
         }
         if !st.pd && st.slope > 0.0 {
             // stability lost with the pressure still rising: a bifurcation, not a pressure maximum.
@@ -677,21 +668,8 @@ pub fn pressure_maximum_path(
                     }
                 }
             }
-            let p_kpa = good.p * 1e3;
-            let mut loads = sm.loads(p_kpa, 0.0);
-            loads.presc = base.presc.clone();
-            let record = sm.record(&good.a, &loads, &good.q, iterations);
-            if path.last().map_or(true, |r| r.0.p_kpa < record.p_kpa) {
-                path.push((record.clone(), good.a.u.clone()));
-            }
-            return Ok(LimitOutcome::Found(Equilibrium {
-                q: good.q,
-                loads,
-                record,
-                newton_iterations: iterations,
-                end: Some(("limit-point".into(), format!("the tangent loses positive definiteness beyond p = {p_kpa:.4} kPa with the pressure still rising (a bifurcation; located under volume control)"))),
-                warm_started: false,
-            }));
+            let cause = format!("the tangent loses positive definiteness beyond p = {:.4} kPa with the pressure still rising (a bifurcation; located under volume control)", good.p * 1e3);
+            return Ok(vol_found(sm, &base, good, iterations, ("limit-point".into(), cause), path));
         }
         // keep the new state and, of the two before, the one closer to the maximum
         let old = std::mem::replace(&mut last, st);
@@ -712,22 +690,25 @@ pub fn pressure_maximum_path(
     if !converged || last.slope.abs() * v_ref > 0.05 * last.p.abs() {
         return Err(iterations);
     }
-    let loads = sm.loads(last.p * 1e3, 0.0);
-    let mut loads = loads;
+    let cause = format!("pressure maximum at p = {:.4} kPa (located under volume control)", last.p * 1e3);
+    Ok(vol_found(sm, &base, last, iterations, ("limit-point".into(), cause), path))
+}
+
+/// The loads and scene record of a volume-controlled state (the other loads as in `base`).
+fn vol_record(sm: &SceneModel, base: &Loads, st: &VolState, iterations: usize) -> (Loads, StepRecord) {
+    let mut loads = sm.loads(st.p * 1e3, 0.0);
     loads.presc = base.presc.clone();
-    let record = sm.record(&last.a, &loads, &last.q, iterations);
-    let p_kpa = last.p * 1e3;
+    let record = sm.record(&st.a, &loads, &st.q, iterations);
+    (loads, record)
+}
+
+/// A volume-controlled state as the end of a path (appended to `path` unless already there).
+fn vol_found(sm: &SceneModel, base: &Loads, st: VolState, iterations: usize, end: (String, String), path: &mut Vec<(StepRecord, Vec<[f64; 3]>)>) -> LimitOutcome {
+    let (loads, record) = vol_record(sm, base, &st, iterations);
     if path.last().map_or(true, |r| r.0.p_kpa < record.p_kpa) {
-        path.push((record.clone(), last.a.u.clone()));
+        path.push((record.clone(), st.a.u));
     }
-    Ok(LimitOutcome::Found(Equilibrium {
-        q: last.q,
-        loads,
-        record,
-        newton_iterations: iterations,
-        end: Some(("limit-point".into(), format!("pressure maximum at p = {p_kpa:.4} kPa (located under volume control)"))),
-        warm_started: false,
-    }))
+    LimitOutcome::Found(Equilibrium { q: st.q, loads, record, newton_iterations: iterations, end: Some(end), warm_started: false })
 }
 
 /// Ramp a scene's pressure through the given targets (kPa). Positive and negative targets are

@@ -84,12 +84,7 @@ pub fn enclosed_volume<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
     let lift = |x: D| Dual::new(x, zero);
     let ad = Actuator::<Dual<D>>::new(lift(s.r), lift(act.profile.l), lift(zero));
     let (x, w) = gauss_legendre(n);
-    let fl = s.lobe_fraction();
-    let s0 = s.lobe_start_shat(0);
-    let mut patches_s = vec![(s0, s0 + fl * (1.0 / 3.0))];
-    if s.theta_n.re() > 0.0 {
-        patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
-    }
+    let patches_s = sector_arc_patches(s);
     let eta_d = lift(cst(eta));
     let mut total = zero;
     for &(sa, sb) in &patches_s {
@@ -115,6 +110,18 @@ pub fn enclosed_volume<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
     total * 3.0
 }
 
+/// The ŝ intervals of one 120° period of the section on which it is a single arc (lobe 0, then
+/// the following notch when the section has one): each is integrated by its own Gauss rule.
+fn sector_arc_patches<D: Scalar>(s: &super::Section<D>) -> Vec<(D, D)> {
+    let fl = s.lobe_fraction();
+    let s0 = s.lobe_start_shat(0);
+    let mut patches = vec![(s0, s0 + fl * (1.0 / 3.0))];
+    if s.theta_n.re() > 0.0 {
+        patches.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
+    }
+    patches
+}
+
 /// [`enclosed_volume`] for any variant: the wall layer as [`Actuator::point`] gives it
 /// (including the twist, which does not change the volume of an untrimmed wall), over z ∈
 /// [δ0(ŝ), L + δL(ŝ)] when the wall is trimmed.
@@ -125,12 +132,7 @@ fn enclosed_volume_general<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> 
     let lift = |x: D| Dual::new(x, zero);
     let ad = act.lift();
     let (x, w) = gauss_legendre(n);
-    let fl = s.lobe_fraction();
-    let s0 = s.lobe_start_shat(0);
-    let mut patches_s = vec![(s0, s0 + fl * (1.0 / 3.0))];
-    if s.theta_n.re() > 0.0 {
-        patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
-    }
+    let patches_s = sector_arc_patches(s);
     let eta_d = lift(cst(eta));
     // the junctions move with the design (end tangent) and the offset layer's integrand jumps
     // there (its z-speed involves ρ''), so the patch bounds carry the derivatives
@@ -179,12 +181,7 @@ pub fn end_ring_area<D: Scalar>(act: &Actuator<D>, eta: f64) -> D {
     let lift = |x: D| Dual::new(x, zero);
     let ad = act.lift();
     let (x, w) = gauss_legendre(VOLUME_QUADRATURE_POINTS);
-    let fl = s.lobe_fraction();
-    let s0 = s.lobe_start_shat(0);
-    let mut patches_s = vec![(s0, s0 + fl * (1.0 / 3.0))];
-    if s.theta_n.re() > 0.0 {
-        patches_s.push((s0 + fl * (1.0 / 3.0), s0 + 1.0 / 3.0));
-    }
+    let patches_s = sector_arc_patches(s);
     let eta_d = lift(cst(eta));
     let mut total = zero;
     for &(sa, sb) in &patches_s {

@@ -536,7 +536,8 @@ mod nlopt_driver {
             let setup = opt
                 .set_lower_bounds(&vec![0.0; n])
                 .and_then(|_| opt.set_upper_bounds(&vec![1.0; n]))
-                .and_then(|_| opt.add_inequality_mconstraint(m, cons, (), &vec![FEAS_TOL * 0.1; m]))
+                // bound-constrained problems (e.g. least-squares fits) have no constraint block
+                .and_then(|_| if m > 0 { opt.add_inequality_mconstraint(m, cons, (), &vec![FEAS_TOL * 0.1; m]) } else { Ok(nlopt::SuccessState::Success) })
                 .and_then(|_| opt.set_xtol_rel(xtol))
                 .and_then(|_| opt.set_ftol_rel(ftol))
                 .and_then(|_| opt.set_maxeval(maxeval as u32));
@@ -951,6 +952,24 @@ mod tests {
             assert!(kkt < 1e-2, "{name}: KKT {kkt}");
             assert!((lam[0] - 1.0).abs() < 2e-2, "{name}: multiplier {lam:?}");
             assert!(s.evaluations.len() <= 80, "{name}: {} evaluations", s.evaluations.len());
+        }
+    }
+
+    /// A bound-constrained least-squares fit (no constraint block, as the letter calibration
+    /// uses): min (x0 − 0.3)² + (x1 − 1.2)² on the unit box → (0.3, 1).
+    #[test]
+    fn every_optimiser_solves_a_bound_constrained_fit() {
+        let fit = |x: &[f64], _: Option<&Evaluation>| {
+            let (a, b) = (x[0] - 0.3, x[1] - 1.2);
+            Evaluation::from_parts(x, a * a + b * b, vec![2.0 * a, 2.0 * b], vec![], vec![])
+        };
+        for name in available_optimisers() {
+            let stop = StopRules { max_evaluations: 60, xtol_rel: 1e-8, ftol_rel: 1e-12 };
+            let mut s = Session::with_evaluator(stop, 0, Box::new(fit));
+            let status = optimiser(name).unwrap().run(&mut s, &[0.8, 0.1]);
+            let e = s.evaluations.iter().min_by(|a, b| a.f.total_cmp(&b.f)).unwrap();
+            assert!((e.x[0] - 0.3).abs() < 1e-4 && (e.x[1] - 1.0).abs() < 1e-6, "{name}: {:?} ({status})", e.x);
+            assert!((e.f - 0.04).abs() < 1e-7, "{name}: f = {} ({status})", e.f);
         }
     }
 

@@ -110,6 +110,18 @@ pub struct OptProblem {
     pub max_evaluations: usize,
     pub xtol_rel: f64,
     pub ftol_rel: f64,
+    /// multi-fidelity continuation: the stages every run goes through in order (empty: one
+    /// stage on `opts.mesh` with `max_evaluations`)
+    pub stages: Vec<Stage>,
+}
+
+/// A fidelity stage: the mesh and the evaluation budget.
+#[derive(Clone, Debug)]
+pub struct Stage {
+    /// the preset name or the mesh string, as the problem file gave it
+    pub label: String,
+    pub mesh: crate::meshing::MeshSpec,
+    pub max_evaluations: usize,
 }
 
 /// One FE evaluation in the optimiser's terms (minimisation, scaled variables).
@@ -142,6 +154,11 @@ pub struct Evaluation {
     pub adjoint_solves: usize,
     pub time_s: f64,
     pub warm_started: bool,
+    /// fidelity stage (0-based) and its mesh (`<Na>x<Nz>x<Nt>`)
+    #[serde(default)]
+    pub stage: usize,
+    #[serde(default)]
+    pub mesh: String,
     /// scaled objective f = −objective/reference and its gradient in x; constraint Jacobian
     #[serde(skip)]
     pub f: f64,
@@ -175,6 +192,8 @@ impl Evaluation {
             adjoint_solves: 0,
             time_s: 0.0,
             warm_started: false,
+            stage: 0,
+            mesh: String::new(),
             f,
             df,
             g,
@@ -231,6 +250,24 @@ impl OptProblem {
 
     pub fn n_constraints(&self) -> usize {
         self.scenes.len() + 1
+    }
+
+    /// The problem of each fidelity stage (the problem itself when it has no stages).
+    pub fn stage_problems(&self) -> Vec<(String, OptProblem)> {
+        if self.stages.is_empty() {
+            return vec![(self.opts.mesh.size_string(), self.clone())];
+        }
+        self.stages
+            .iter()
+            .map(|st| {
+                let mut p = self.clone();
+                p.opts.mesh = st.mesh;
+                p.opts.formulation = twistopt_solver::element::Formulation::standard(st.mesh.kind);
+                p.max_evaluations = st.max_evaluations;
+                p.stages.clear();
+                (st.label.clone(), p)
+            })
+            .collect()
     }
 
     /// One FE evaluation (never panics; failures are infeasible evaluations with a status).
@@ -801,30 +838,55 @@ pub fn run_all(
     use rayon::prelude::*;
     let jobs: Vec<(String, usize)> = optimisers.iter().flat_map(|o| (0..starts.len()).map(move |s| (o.clone(), s))).collect();
     let done = Mutex::new(());
+    let stages = problem.stage_problems();
     jobs.par_iter()
         .map(|(name, si)| {
             let t0 = Instant::now();
             let run_name = format!("{name} start {si}");
             let counter = std::cell::Cell::new(0usize);
-            let each = &each;
-            let mut session = Session::new(problem, move |e| {
-                counter.set(counter.get() + 1);
-                each(&run_name, counter.get(), e)
-            });
-            let status = match optimiser(name) {
-                Some(o) => o.run(&mut session, &starts[*si]),
-                None => format!("unknown optimiser '{name}'"),
-            };
-            let best = session.best();
+            let mut evaluations: Vec<Evaluation> = Vec::new();
+            let mut statuses = Vec::new();
+            let mut x = starts[*si].clone();
+            let (mut best, mut g0) = (None, 1.0);
+            for (k, (label, sp)) in stages.iter().enumerate() {
+                let (run_name, counter, each) = (&run_name, &counter, &each);
+                let mesh = sp.opts.mesh.size_string();
+                let mut session = Session::new(sp, move |e| {
+                    counter.set(counter.get() + 1);
+                    let mut e = e.clone();
+                    e.stage = k;
+                    e.mesh = mesh.clone();
+                    each(run_name, counter.get(), &e)
+                });
+                let status = match optimiser(name) {
+                    Some(o) => o.run(&mut session, &x),
+                    None => format!("unknown optimiser '{name}'"),
+                };
+                statuses.push(if stages.len() > 1 { format!("{label}: {status}") } else { status });
+                // the next stage starts from this stage's best feasible design (else where it stopped)
+                best = session.best();
+                if let Some(b) = best.or(session.evaluations.len().checked_sub(1)) {
+                    x = session.evaluations[b].x.clone();
+                }
+                g0 = session.evaluations.first().map_or(1.0, |e| e.df.iter().fold(0.0f64, |a, v| a.max(v.abs())));
+                best = best.map(|b| b + evaluations.len());
+                let mesh = sp.opts.mesh.size_string();
+                evaluations.extend(session.evaluations.into_iter().map(|mut e| {
+                    e.stage = k;
+                    e.mesh = mesh.clone();
+                    e
+                }));
+            }
+            // the result is the last stage's best (earlier stages are another fidelity)
             let (kkt, multipliers) = match best {
                 Some(b) => {
-                    let g0 = session.evaluations[0].df.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-                    let (k, l) = kkt_measure(&session.evaluations[b], g0);
+                    let (k, l) = kkt_measure(&evaluations[b], g0);
                     (Some(k), Some(l))
                 }
                 None => (None, None),
             };
-            let r = RunResult { optimiser: name.clone(), start: *si, x0: starts[*si].clone(), status, evaluations: session.evaluations, best, kkt, multipliers, wall_time_s: t0.elapsed().as_secs_f64() };
+            let status = statuses.join("; ");
+            let r = RunResult { optimiser: name.clone(), start: *si, x0: starts[*si].clone(), status, evaluations, best, kkt, multipliers, wall_time_s: t0.elapsed().as_secs_f64() };
             let _g = done.lock();
             progress(&r);
             r
@@ -906,6 +968,22 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
     if !(sec.ks_rho_per_mm.is_finite() && sec.ks_rho_per_mm > 0.0) {
         bail!("optimise.ks_rho_per_mm = {} must be finite and > 0", sec.ks_rho_per_mm);
     }
+    let mut stages = Vec::new();
+    for (k, st) in sec.stages.iter().enumerate() {
+        let mesh = match (&st.preset, &st.mesh) {
+            (Some(p), None) => crate::meshing::MeshSpec::preset(p).map_err(|e| anyhow!("optimise.stages[{k}].preset: {e}"))?,
+            (None, Some(m)) => crate::meshing::MeshSpec::parse(m).map_err(|e| anyhow!("optimise.stages[{k}].mesh: {e}"))?,
+            _ => bail!("optimise.stages[{k}]: give either preset or mesh"),
+        };
+        if !(1..=10_000).contains(&st.max_evaluations) {
+            bail!("optimise.stages[{k}].max_evaluations = {} must be between 1 and 10000", st.max_evaluations);
+        }
+        stages.push(Stage { label: st.preset.clone().or(st.mesh.clone()).unwrap_or_default(), mesh, max_evaluations: st.max_evaluations });
+    }
+    let budget: usize = stages.iter().map(|s| s.max_evaluations).sum();
+    if budget > sec.max_evaluations {
+        bail!("optimise.stages: the stages' max_evaluations sum to {budget}, more than optimise.max_evaluations = {} (the cap per run)", sec.max_evaluations);
+    }
     let mut fixed = v.geometry.design.values.clone();
     fixed.insert(P_PRESSURE.into(), p_max);
     let opts = problem.scene_options(v);
@@ -923,6 +1001,7 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
             max_evaluations: sec.max_evaluations,
             xtol_rel: sec.xtol_rel,
             ftol_rel: sec.ftol_rel,
+            stages,
         },
         sec,
     ))

@@ -219,6 +219,135 @@ pub fn line_plot(stem: &Path, plot: &LinePlot) -> Result<[PathBuf; 2]> {
     Ok([png, svg])
 }
 
+/// A scalar field on a rectangular grid (cell-centred values; None = infeasible or failed,
+/// drawn grey) with paths drawn over it (e.g. an optimiser's designs).
+#[derive(Clone, Debug)]
+pub struct MapPlot {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub value_label: String,
+    /// cell centres along x and y (ascending)
+    pub xs: Vec<f64>,
+    pub ys: Vec<f64>,
+    /// values[iy][ix]
+    pub values: Vec<Vec<Option<f64>>>,
+    /// named polylines (each drawn with markers, the last point larger)
+    pub paths: Vec<Series>,
+    pub note: String,
+}
+
+/// Cell edges from centres (midpoints; the outer cells mirror their neighbour).
+fn cell_edges(c: &[f64]) -> Vec<(f64, f64)> {
+    let n = c.len();
+    (0..n)
+        .map(|i| {
+            let lo = if i > 0 { 0.5 * (c[i - 1] + c[i]) } else if n > 1 { c[0] - 0.5 * (c[1] - c[0]) } else { c[0] - 0.5 };
+            let hi = if i + 1 < n { 0.5 * (c[i] + c[i + 1]) } else if n > 1 { c[n - 1] + 0.5 * (c[n - 1] - c[n - 2]) } else { c[0] + 0.5 };
+            (lo, hi)
+        })
+        .collect()
+}
+
+fn draw_map<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, m: &MapPlot) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("map plot: {e:?}");
+    root.fill(&WHITE).map_err(err)?;
+    let vals: Vec<f64> = m.values.iter().flatten().flatten().copied().filter(|v| v.is_finite()).collect();
+    let (mut vmin, mut vmax) = vals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if !vmin.is_finite() {
+        (vmin, vmax) = (0.0, 1.0);
+    } else if vmax - vmin <= 1e-12 * (1.0 + vmax.abs()) {
+        (vmin, vmax) = (vmin - 0.5, vmax + 0.5);
+    }
+    let (w, h) = root.dim_in_pixel();
+    root.draw_text(&m.note, &TextStyle::from((FONT, 13).into_font()).color(&RGBColor(80, 80, 80)), (10, h as i32 - 18)).map_err(err)?;
+    let (root, _) = root.split_vertically(h - 22);
+    let (main, bar) = root.split_horizontally(w.saturating_sub(110));
+    let xe = cell_edges(&m.xs);
+    let ye = cell_edges(&m.ys);
+    if xe.is_empty() || ye.is_empty() {
+        bail!("map plot: empty grid");
+    }
+    let mut chart = ChartBuilder::on(&main)
+        .caption(&m.title, (FONT, 20).into_font())
+        .margin(12)
+        .x_label_area_size(50)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xe[0].0..xe[xe.len() - 1].1, ye[0].0..ye[ye.len() - 1].1)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc(m.x_label.as_str())
+        .y_desc(m.y_label.as_str())
+        .label_style((FONT, 14).into_font())
+        .axis_desc_style((FONT, 16).into_font())
+        .draw()
+        .map_err(err)?;
+    let mut cells = Vec::new();
+    for (iy, row) in m.values.iter().enumerate() {
+        for (ix, v) in row.iter().enumerate() {
+            let c = match v {
+                Some(v) if v.is_finite() => ViridisRGB.get_color_normalized(*v as f32, vmin as f32, vmax as f32),
+                _ => RGBColor(200, 200, 200),
+            };
+            cells.push(Rectangle::new([(xe[ix].0, ye[iy].0), (xe[ix].1, ye[iy].1)], c.filled()));
+        }
+    }
+    chart.draw_series(cells).map_err(err)?;
+    for (i, s) in m.paths.iter().enumerate() {
+        let c = colour(i + 1);
+        chart.draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2))).map_err(err)?.label(s.name.as_str()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+        chart.draw_series(s.points.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(err)?;
+        if let Some(last) = s.points.last() {
+            chart.draw_series(std::iter::once(Circle::new(*last, 7, WHITE.stroke_width(2)))).map_err(err)?;
+        }
+    }
+    if !m.paths.is_empty() {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::UpperLeft)
+            .label_font((FONT, 13).into_font())
+            .draw()
+            .map_err(err)?;
+    }
+    let digits = (2.0 - (vmax - vmin).log10().floor()).clamp(0.0, 6.0) as usize;
+    let mut cb = ChartBuilder::on(&bar)
+        .margin_top(45)
+        .margin_bottom(60)
+        .margin_right(10)
+        .y_label_area_size(60)
+        .caption(m.value_label.as_str(), (FONT, 12).into_font())
+        .build_cartesian_2d(0.0..1.0, vmin..vmax)
+        .map_err(err)?;
+    cb.configure_mesh().disable_mesh().disable_x_axis().label_style((FONT, 12).into_font()).y_label_formatter(&|y| format!("{:.*}", digits, y)).draw().map_err(err)?;
+    let n = 100;
+    cb.draw_series((0..n).map(|k| {
+        let a = vmin + (vmax - vmin) * k as f64 / n as f64;
+        let b = vmin + (vmax - vmin) * (k + 1) as f64 / n as f64;
+        Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color_normalized((0.5 * (a + b)) as f32, vmin as f32, vmax as f32).filled())
+    }))
+    .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Write a map with paths as `<stem>.png` and `<stem>.svg`.
+pub fn map_plot(stem: &Path, plot: &MapPlot) -> Result<[PathBuf; 2]> {
+    register_font()?;
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    draw_map(BitMapBackend::new(&png, (WIDTH + 110, HEIGHT + 40)).into_drawing_area(), plot)?;
+    draw_map(SVGBackend::new(&svg, (WIDTH + 110, HEIGHT + 40)).into_drawing_area(), plot)?;
+    Ok([png, svg])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,6 +356,19 @@ mod tests {
     fn writes_png_and_svg() {
         let dir = std::env::temp_dir().join(format!("twistopt-plot-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
+        let map = MapPlot {
+            title: "test map".into(),
+            x_label: "α (°)".into(),
+            y_label: "l (mm)".into(),
+            value_label: "Ω".into(),
+            xs: vec![60.0, 160.0, 260.0, 360.0],
+            ys: vec![10.0, 15.0, 20.0],
+            values: vec![vec![Some(1.0), Some(2.0), None, Some(4.0)]; 3],
+            paths: vec![Series::new("run", vec![(100.0, 12.0), (300.0, 18.0)])],
+            note: "grey: infeasible".into(),
+        };
+        let [png, svg] = map_plot(&dir.join("map"), &map).unwrap();
+        assert!(std::fs::metadata(&png).unwrap().len() > 1000 && std::fs::metadata(&svg).unwrap().len() > 1000);
         let plot = LinePlot::new("test θ(p)", "p (kPa)", "θ (°)")
             .with(Series::new("a", vec![(-10.0, -1.0), (0.0, 0.0), (10.0, 2.0)]))
             .with(Series::markers_only("ref", vec![(5.0, 1.0)]))

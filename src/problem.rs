@@ -116,6 +116,24 @@ pub struct OptimiseSection {
     /// KS aggregation parameter of the max radius (1/mm)
     #[serde(rename = "ks_rho_per_mm", default = "default_ks_rho")]
     pub ks_rho_per_mm: f64,
+    /// Multi-fidelity continuation (optional): each run optimises on the first stage's mesh,
+    /// then restarts from its best design on the next stage's mesh, and so on; the result is the
+    /// last stage's. Without stages a run uses [fidelity] and max_evaluations. With stages,
+    /// max_evaluations is the cap on their sum.
+    #[serde(default)]
+    pub stages: Vec<StageSection>,
+}
+
+/// One fidelity stage of `[[optimise.stages]]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageSection {
+    /// a mesh preset (`coarse`, `default`, `fine`, `sweep`) ...
+    pub preset: Option<String>,
+    /// ... or an explicit `<Na>x<Nz>x<Nt>` mesh
+    pub mesh: Option<String>,
+    /// FE design evaluations of this stage
+    pub max_evaluations: usize,
 }
 
 fn default_objective() -> String {

@@ -60,6 +60,66 @@ fn optimisers_agree_on_the_torque_optimum_in_alpha() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Multi-fidelity continuation: a run optimises on a very coarse mesh, then restarts from that
+/// stage's best design on a finer one; the result (best.json) is the last stage's.
+#[test]
+fn fidelity_stages_continue_from_the_previous_best() {
+    let dir = std::env::temp_dir().join(format!("twistopt-optimise-stages-{}", std::process::id()));
+    let out = bin()
+        .args([
+            "optimise",
+            "problems/max-torque.toml",
+            "--set",
+            "load.p_max_kPa=20",
+            "--set",
+            "optimise.variables=[\"alpha_deg\", \"l_mm\"]",
+            "--set",
+            "optimise.optimisers=[\"slsqp\"]",
+            "--set",
+            "optimise.starts=1",
+            "--set",
+            "optimise.max_evaluations=40",
+            "--set",
+            "optimise.stages=[{mesh=\"12x4x1\", max_evaluations=20}, {mesh=\"18x8x1\", max_evaluations=20}]",
+            "--map",
+            "3x2",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let best: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("best.json")).unwrap()).unwrap();
+    assert_eq!(best["mesh"], "18x8x1", "{best}");
+    let run = &best["runs"][0];
+    let by_stage: Vec<u64> = run["evaluations_by_stage"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+    assert_eq!(by_stage.len(), 2, "{run}");
+    assert!(by_stage.iter().all(|n| (1..=20).contains(n)), "{by_stage:?}");
+    assert!(best["kkt"].as_f64().unwrap() < 1e-2, "kkt {}", best["kkt"]);
+    let hist: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("history.json")).unwrap()).unwrap();
+    let evs = hist["runs"][0]["evaluations"].as_array().unwrap();
+    let n0 = by_stage[0] as usize;
+    assert!(evs[..n0].iter().all(|e| e["stage"] == 0 && e["mesh"] == "12x4x1"));
+    assert!(evs[n0..].iter().all(|e| e["stage"] == 1 && e["mesh"] == "18x8x1"));
+    // the second stage starts at the first stage's best feasible design
+    let stage0_best = evs[..n0].iter().filter(|e| e["feasible"] == true).max_by(|a, b| a["objective"].as_f64().unwrap().total_cmp(&b["objective"].as_f64().unwrap())).unwrap();
+    assert_eq!(evs[n0]["x"], stage0_best["x"]);
+    // the finer stage improves on (or keeps) the design it started from, measured on its own mesh
+    let start1 = evs[n0]["objective"].as_f64().unwrap();
+    assert!(best["objective"].as_f64().unwrap() >= start1 * (1.0 - 1e-9), "{} < {start1}", best["objective"]);
+    // the objective map over (α, l) on the first stage's mesh, with the design path
+    let map: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("map.json")).unwrap()).unwrap();
+    assert_eq!(map["mesh"], "12x4x1");
+    assert_eq!(map["alpha_deg"].as_array().unwrap().len(), 3);
+    assert_eq!(map["l_mm"].as_array().unwrap().len(), 2);
+    let vals: Vec<f64> = map["value"].as_array().unwrap().iter().flat_map(|r| r.as_array().unwrap().iter().filter_map(|v| v.as_f64())).collect();
+    assert!(vals.len() >= 4 && vals.iter().all(|v| v.is_finite() && *v > 0.0), "{map}");
+    for f in ["map.png", "map.svg"] {
+        assert!(dir.join(f).exists(), "{f}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn optimise_rejects_bad_sections() {
     let dir = std::env::temp_dir().join(format!("twistopt-optimise-bad-{}", std::process::id()));
@@ -69,6 +129,9 @@ fn optimise_rejects_bad_sections() {
         ("optimise.optimisers=[\"newton\"]", "not available"),
         ("optimise.starts=0", "optimise.starts"),
         ("optimise.banana=1", "banana"),
+        ("optimise.stages=[{max_evaluations=5}]", "optimise.stages[0]: give either preset or mesh"),
+        ("optimise.stages=[{preset=\"huge\", max_evaluations=5}]", "optimise.stages[0].preset"),
+        ("optimise.stages=[{preset=\"coarse\", max_evaluations=80}, {preset=\"default\", max_evaluations=80}]", "sum to 160"),
     ] {
         let out = bin().args(["optimise", "problems/energy-density.toml", "--set", set, "--out"]).arg(&dir).output().unwrap();
         assert!(!out.status.success(), "{set} accepted");

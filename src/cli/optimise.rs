@@ -23,12 +23,30 @@ pub struct OptimiseArgs {
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// After the runs, map the objective over (α, l) on an NAxNL grid at the best design's other
+    /// variables (r, p), on the first stage's mesh, with every run's design path drawn over it
+    /// (DIR/map.{png,svg}, DIR/map.json). Costs NA·NL evaluations.
+    #[arg(long, value_name = "NAxNL")]
+    pub map: Option<String>,
 }
 
 pub fn run(args: &OptimiseArgs) -> Result<()> {
     let problem = Problem::load(&args.problem, &args.set)?;
     let v = problem.validate()?;
     let (op, sec) = build_problem(&problem, &v)?;
+    let map = match &args.map {
+        Some(m) => {
+            let parts: Vec<usize> = m.split('x').map(|t| t.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|_| anyhow::anyhow!("--map '{m}' is not NAxNL (e.g. 9x6)"))?;
+            match parts[..] {
+                [na, nl] if (2..=200).contains(&na) && (2..=200).contains(&nl) => Some((na, nl)),
+                _ => anyhow::bail!("--map '{m}': give NAxNL with 2 to 200 points each (e.g. 9x6)"),
+            }
+        }
+        None => None,
+    };
+    if map.is_some() && !(op.variables.iter().any(|x| x.name == "alpha_deg") && op.variables.iter().any(|x| x.name == "l_mm")) {
+        anyhow::bail!("--map needs alpha_deg and l_mm among optimise.variables");
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let starts = starting_points(op.n(), sec.starts);
     let t0 = std::time::Instant::now();
@@ -39,8 +57,8 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
         sec.optimisers.join(", "),
         starts.len(),
         op.scenes.len(),
-        v.mesh.size_string(),
-        op.max_evaluations
+        stages_string(&op),
+        if op.stages.is_empty() { op.max_evaluations } else { op.stages.iter().map(|s| s.max_evaluations).sum() }
     );
     let finished: std::sync::Mutex<Vec<RunResult>> = std::sync::Mutex::new(Vec::new());
     let runs = run_all(&op, &sec.optimisers, &starts, |r| {
@@ -75,6 +93,9 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     let best = write_results(&args.out, &op, &v, &runs, t0.elapsed().as_secs_f64())?;
     println!("best: {}", serde_json::to_string(&best["summary"]).unwrap_or_default());
     plots(&args.out, &runs, unit)?;
+    if let Some((na, nl)) = map {
+        objective_map(&args.out, &op, &runs, na, nl)?;
+    }
     println!("wrote history.json, best.json and plots to {} in {:.1} s", args.out.display(), t0.elapsed().as_secs_f64());
     Ok(())
 }
@@ -110,7 +131,8 @@ fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &cr
         "objective": op.objective.name(), "objective_unit": unit,
         "variables": op.variables, "fixed": op.fixed, "constraints": "radius:<scene> = (KS max radius − limit)/(limit − 20 mm) <= 0; stability = (p − (1 − margin)·p_limit)/(p range) <= 0", "stability_margin": crate::optimise::STABILITY_MARGIN,
         "ballooning_limit_mm": op.ballooning_limit_mm, "ks_rho_per_mm": op.ks_rho,
-        "mesh": v.mesh.size_string(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
+        "mesh": if op.stages.is_empty() { v.mesh.size_string() } else { op.stages.last().map(|s| s.mesh.size_string()).unwrap_or_default() },
+        "stages": op.stages.iter().map(|s| json!({"label": s.label, "mesh": s.mesh.size_string(), "max_evaluations": s.max_evaluations})).collect::<Vec<_>>(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
         "runs": hist_runs, "wall_time_s": wall_time_s,
     });
     write_json_atomic(&out.join("history.json"), &history)?;
@@ -120,8 +142,88 @@ fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &cr
     Ok(best)
 }
 
+/// The objective over (α, l) at the best design's other variables, with the runs' paths.
+fn objective_map(out: &std::path::Path, op: &crate::optimise::OptProblem, runs: &[RunResult], na: usize, nl: usize) -> Result<()> {
+    use rayon::prelude::*;
+    let Some(best) = runs.iter().filter_map(|r| r.best.map(|b| &r.evaluations[b])).max_by(|a, b| a.objective.total_cmp(&b.objective)) else {
+        println!("map: no feasible design, no map");
+        return Ok(());
+    };
+    let (mesh_label, mp) = op.stage_problems().into_iter().next().ok_or_else(|| anyhow::anyhow!("no stage"))?;
+    let ia = op.variables.iter().position(|x| x.name == "alpha_deg").unwrap_or(0);
+    let il = op.variables.iter().position(|x| x.name == "l_mm").unwrap_or(0);
+    let lin = |i: usize, n: usize| (0..n).map(|k| k as f64 / (n - 1) as f64).map(|t| (t, op.variables[i].lower + t * (op.variables[i].upper - op.variables[i].lower))).collect::<Vec<_>>();
+    let (xa, xl) = (lin(ia, na), lin(il, nl));
+    let t0 = std::time::Instant::now();
+    println!("map: {na} x {nl} designs over (α, l) on {} at {}", mp.opts.mesh.size_string(), fmt_design(&best.design));
+    // one row of α per l, warm-started along the row
+    let rows: Vec<Vec<(Option<f64>, bool, String)>> = xl
+        .par_iter()
+        .map(|(tl, _)| {
+            let mut warm = None;
+            xa.iter()
+                .map(|(ta, _)| {
+                    let mut x = best.x.clone();
+                    x[ia] = *ta;
+                    x[il] = *tl;
+                    let e = mp.evaluate(&x, &mut warm, None);
+                    let v = (e.status == "ok" && e.objective.is_finite()).then_some(e.objective);
+                    (v, e.feasible, e.status.clone())
+                })
+                .collect()
+        })
+        .collect();
+    let values: Vec<Vec<Option<f64>>> = rows.iter().map(|r| r.iter().map(|c| c.0.filter(|_| c.1)).collect()).collect();
+    let alphas: Vec<f64> = xa.iter().map(|p| p.1).collect();
+    let ls: Vec<f64> = xl.iter().map(|p| p.1).collect();
+    let others: Vec<String> = best.design.iter().filter(|(k, _)| k.as_str() != "alpha_deg" && k.as_str() != "l_mm").map(|(k, v)| format!("{k} = {v:.3}")).collect();
+    let paths: Vec<Series> = runs
+        .iter()
+        .map(|r| Series::new(format!("{} start {}", r.optimiser, r.start), r.evaluations.iter().filter_map(|e| Some((*e.design.get("alpha_deg")?, *e.design.get("l_mm")?))).collect()))
+        .collect();
+    let unit = op.objective.reference().1;
+    let plot = crate::plot::MapPlot {
+        title: format!("{} over (α, l) at {}", op.objective.name(), others.join(", ")),
+        x_label: "pre-twist α (°)".into(),
+        y_label: "waist radius l (mm)".into(),
+        value_label: unit.to_string(),
+        xs: alphas.clone(),
+        ys: ls.clone(),
+        values: values.clone(),
+        paths,
+        note: format!("map on {} ({mesh_label}); grey: infeasible or failed; paths: every evaluation of each run (all stages, projected onto (α, l)); ring: last", mp.opts.mesh.size_string()),
+    };
+    crate::plot::map_plot(&out.join("map"), &plot)?;
+    let j = json!({
+        "objective": op.objective.name(), "unit": unit, "mesh": mp.opts.mesh.size_string(), "at": best.design,
+        "alpha_deg": alphas, "l_mm": ls,
+        "value": rows.iter().map(|r| r.iter().map(|c| c.0).collect::<Vec<_>>()).collect::<Vec<_>>(),
+        "feasible": rows.iter().map(|r| r.iter().map(|c| c.1).collect::<Vec<_>>()).collect::<Vec<_>>(),
+        "status": rows.iter().map(|r| r.iter().map(|c| c.2.clone()).collect::<Vec<_>>()).collect::<Vec<_>>(),
+        "wall_time_s": t0.elapsed().as_secs_f64(),
+    });
+    write_json_atomic(&out.join("map.json"), &j)?;
+    println!("map: wrote map.png, map.svg, map.json in {:.1} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The mesh, or the fidelity stages with their budgets.
+fn stages_string(op: &crate::optimise::OptProblem) -> String {
+    if op.stages.is_empty() {
+        op.opts.mesh.size_string()
+    } else {
+        op.stages.iter().map(|s| format!("{} ({}, ≤ {} evaluations)", s.mesh.size_string(), s.label, s.max_evaluations)).collect::<Vec<_>>().join(" → ")
+    }
+}
+
 fn fmt_design(d: &std::collections::BTreeMap<String, f64>) -> String {
     d.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect::<Vec<_>>().join(", ")
+}
+
+/// Evaluations per fidelity stage of a run.
+fn by_stage(r: &RunResult) -> Vec<usize> {
+    let n = r.evaluations.iter().map(|e| e.stage + 1).max().unwrap_or(0);
+    (0..n).map(|k| r.evaluations.iter().filter(|e| e.stage == k).count()).collect()
 }
 
 fn best_json(obj: &Objective, runs: &[RunResult], fixed: &std::collections::BTreeMap<String, f64>) -> Value {
@@ -135,6 +237,7 @@ fn best_json(obj: &Objective, runs: &[RunResult], fixed: &std::collections::BTre
                 "optimiser": r.optimiser, "start": r.start, "status": r.status,
                 "objective": b.map(|e| e.objective), "design": b.map(|e| &e.design),
                 "evaluations": r.evaluations.len(), "evaluations_to_best": r.best.map(|i| i + 1),
+                "evaluations_by_stage": by_stage(r), "mesh": b.map(|e| &e.mesh),
                 "kkt": r.kkt, "wall_time_s": r.wall_time_s,
             })
         })
@@ -153,7 +256,7 @@ fn best_json(obj: &Objective, runs: &[RunResult], fixed: &std::collections::BTre
                 "omega_J_m3": if *obj == Objective::EnergyDensity { Some(e.objective) } else { e.theta_deg.zip(e.tau_nm).map(|(t, q)| crate::scene::energy_density(t, q)) },
                 "objective": e.objective, "max_radius_mm": e.max_radius_mm, "constraints": e.constraints,
                 "evaluations": total, "status": if r.kkt.is_some_and(|k| k < 1e-2) { "optimal" } else { "feasible" },
-                "optimiser": r.optimiser, "start": r.start, "kkt": r.kkt,
+                "optimiser": r.optimiser, "start": r.start, "kkt": r.kkt, "mesh": e.mesh,
                 "constraint_tolerance": FEAS_TOL,
             })
         }

@@ -122,6 +122,8 @@ pub struct Stage {
     pub label: String,
     pub mesh: crate::meshing::MeshSpec,
     pub max_evaluations: usize,
+    pub xtol_rel: f64,
+    pub ftol_rel: f64,
 }
 
 /// One FE evaluation in the optimiser's terms (minimisation, scaled variables).
@@ -264,6 +266,8 @@ impl OptProblem {
                 p.opts.mesh = st.mesh;
                 p.opts.formulation = twistopt_solver::element::Formulation::standard(st.mesh.kind);
                 p.max_evaluations = st.max_evaluations;
+                p.xtol_rel = st.xtol_rel;
+                p.ftol_rel = st.ftol_rel;
                 p.stages.clear();
                 (st.label.clone(), p)
             })
@@ -978,7 +982,13 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
         if !(1..=10_000).contains(&st.max_evaluations) {
             bail!("optimise.stages[{k}].max_evaluations = {} must be between 1 and 10000", st.max_evaluations);
         }
-        stages.push(Stage { label: st.preset.clone().or(st.mesh.clone()).unwrap_or_default(), mesh, max_evaluations: st.max_evaluations });
+        let (xtol_rel, ftol_rel) = (st.xtol_rel.unwrap_or(sec.xtol_rel), st.ftol_rel.unwrap_or(sec.ftol_rel));
+        for (key, t) in [("xtol_rel", xtol_rel), ("ftol_rel", ftol_rel)] {
+            if !(t.is_finite() && t > 0.0 && t < 1.0) {
+                bail!("optimise.stages[{k}].{key} = {t} must be in (0, 1)");
+            }
+        }
+        stages.push(Stage { label: st.preset.clone().or(st.mesh.clone()).unwrap_or_default(), mesh, max_evaluations: st.max_evaluations, xtol_rel, ftol_rel });
     }
     let budget: usize = stages.iter().map(|s| s.max_evaluations).sum();
     if budget > sec.max_evaluations {

@@ -134,6 +134,10 @@ pub struct StageSection {
     pub mesh: Option<String>,
     /// FE design evaluations of this stage
     pub max_evaluations: usize,
+    /// this stage's stopping tolerances (default: optimise.xtol_rel / ftol_rel); an early,
+    /// cheap stage need not converge tightly
+    pub xtol_rel: Option<f64>,
+    pub ftol_rel: Option<f64>,
 }
 
 fn default_objective() -> String {

@@ -132,7 +132,7 @@ fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &cr
         "variables": op.variables, "fixed": op.fixed, "constraints": "radius:<scene> = (KS max radius − limit)/(limit − 20 mm) <= 0; stability = (p − (1 − margin)·p_limit)/(p range) <= 0", "stability_margin": crate::optimise::STABILITY_MARGIN,
         "ballooning_limit_mm": op.ballooning_limit_mm, "ks_rho_per_mm": op.ks_rho,
         "mesh": if op.stages.is_empty() { v.mesh.size_string() } else { op.stages.last().map(|s| s.mesh.size_string()).unwrap_or_default() },
-        "stages": op.stages.iter().map(|s| json!({"label": s.label, "mesh": s.mesh.size_string(), "max_evaluations": s.max_evaluations})).collect::<Vec<_>>(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
+        "stages": op.stages.iter().map(|s| json!({"label": s.label, "mesh": s.mesh.size_string(), "max_evaluations": s.max_evaluations, "xtol_rel": s.xtol_rel, "ftol_rel": s.ftol_rel})).collect::<Vec<_>>(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
         "runs": hist_runs, "wall_time_s": wall_time_s,
     });
     write_json_atomic(&out.join("history.json"), &history)?;

@@ -5,7 +5,8 @@
 //! element Jacobian is positive.
 //!
 //! * **Around**: Na a multiple of 3. Arc-aligned (default): per 120° sector nL =
-//!   round((Na/3)·θL/(θL+θN)) element edges (clipped to [1, Na/3 − 1]; all Na/3 when r = R) go
+//!   round((Na/3)·θL/(θL+θN)) element edges (clipped to [1, Na/3 − 1]; all Na/3 when r = R or
+//!   when the notch is shorter than [`NOTCH_MIN_SHARE`] of an element, i.e. r within ~0.05 mm of R) go
 //!   uniformly (in arc length) on the lobe and the rest on the notch, so nodes fall exactly on the
 //!   six curvature jumps; node i = 0 is the start of lobe 0 (junction N2 → L0). Uniform: ŝᵢ = i/Na,
 //!   node 0 at the tip of lobe 0. Note: in arc-aligned mode the node distribution depends on nL,
@@ -216,6 +217,10 @@ pub struct ActuatorMesh {
     pub spec: MeshSpec,
 }
 
+/// Smallest notch length, in elements of the uniform split, that gets its own element(s) in the
+/// arc-aligned split (below it the notch, < 1 % of an element, shares the lobe's last element).
+pub const NOTCH_MIN_SHARE: f64 = 0.01;
+
 /// Around-parameters of the lattice (ŝ for each lattice index i).
 fn around_shat<D: Scalar>(act: &Actuator<D>, spec: &MeshSpec) -> Vec<D> {
     let q = spec.order();
@@ -227,7 +232,10 @@ fn around_shat<D: Scalar>(act: &Actuator<D>, spec: &MeshSpec) -> Vec<D> {
     }
     let sec = &act.section;
     let fl = sec.lobe_fraction();
-    let (nl, nn) = if sec.theta_n.re() <= 0.0 {
+    // a notch shorter than NOTCH_MIN_SHARE of an element gets no element of its own (as at r = R,
+    // where it vanishes): otherwise r just below R (e.g. an optimiser's r = R − 1e-15) would give
+    // elements of zero width
+    let (nl, nn) = if sec.theta_n.re() <= 0.0 || (per as f64) * (1.0 - fl.re()) < NOTCH_MIN_SHARE {
         (per, 0)
     } else {
         let nl = ((per as f64) * fl.re()).round() as usize;
@@ -585,6 +593,26 @@ mod tests {
                 }
                 assert!((det3(&j) - det3(&a)).abs() < 1e-12, "det J = det A");
             }
+        }
+    }
+
+    /// r just below R (an optimiser at the r bound: R − 1e-15 …) meshes like r = R instead of
+    /// giving the vanishing notch zero-width elements; r a little further away keeps its notch.
+    #[test]
+    fn r_just_below_r_tube_meshes_like_the_circle() {
+        use crate::geometry::{Design, RangePolicy};
+        for preset in ["coarse", "default"] {
+            let spec = MeshSpec::preset(preset).unwrap().with_sector(true);
+            let at = |r: f64| build_mesh(&ActuatorGeometry::new(&Design::new(r, 19.3184, 360.0), RangePolicy::TableI).unwrap(), &spec);
+            let circle = at(20.0).unwrap();
+            for r in [20.0 - 4e-15, 20.0 - 1e-13, 20.0 - 1e-9, 19.999] {
+                let m = at(r).unwrap_or_else(|e| panic!("{preset}, r = {r}: {e}"));
+                assert!(m.quality.min_scaled_jacobian > 0.5 * circle.quality.min_scaled_jacobian, "{preset}, r = {r}: {:?}", m.quality);
+                let d = m.mesh.nodes.iter().zip(&circle.mesh.nodes).map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+                assert!(d < 1e-2, "{preset}, r = {r}: nodes moved by {d} mm");
+            }
+            // r = 19.9: the notch is several % of an element and keeps its own element
+            assert!(at(19.9).is_ok());
         }
     }
 

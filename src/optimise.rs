@@ -28,8 +28,11 @@
 //! the cap, so the constraint stays continuous (its design gradient is then zero).
 //!
 //! A design whose ramp fails before p has no stable equilibrium at p: the evaluation reports the
-//! values and gradients at the last converged pressure (status `failed-before-p`) and is
-//! infeasible through the stability constraint, so the optimiser backs off. An evaluation that
+//! values at the last converged pressure (status `failed-before-p`, in `theta_deg`, `tau_Nm`) and
+//! is infeasible through the stability constraint, so the optimiser backs off. The objective and
+//! its gradient handed to the optimiser are those of the last good point: values at the scenes'
+//! different failure pressures are not the objective at p (they can exceed any feasible value and
+//! so reward the jump into the failed region; seen with SLSQP at p = p_max). An evaluation that
 //! cannot be built at all (invalid geometry) is infeasible with the value and gradient of the last
 //! good point. Nothing is lost: every evaluation is a row of the history with its status.
 //!
@@ -406,6 +409,19 @@ impl OptProblem {
         }
         if !all_ok {
             ev.status = format!("failed-before-p: {}", dg.scenes.values().filter(|s| s.status != "converged").map(|s| format!("{} {} at {:.3} kPa", s.scene, s.status, s.p_kpa)).collect::<Vec<_>>().join(", "));
+            // no objective at p: the optimiser sees the last good point's (the module docs)
+            match last_good {
+                Some(lg) => {
+                    ev.f = lg.f;
+                    ev.df = lg.df.clone();
+                    ev.objective = lg.objective;
+                }
+                None => {
+                    ev.f = 0.0;
+                    ev.df = vec![0.0; n];
+                    ev.objective = 0.0;
+                }
+            }
         }
         for (name, gv) in self.constraint_names().into_iter().zip(&ev.g) {
             ev.constraints.insert(name, *gv);

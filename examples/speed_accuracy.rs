@@ -23,10 +23,10 @@ use anyhow::{anyhow, bail, Context, Result};
 use plotters::prelude::*;
 use serde_json::{json, Value};
 use std::collections::{BTreeMap, BTreeSet};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use twistopt::evaluate::{append_json_line, process_cpu_time_s, read_json_lines};
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::gradient::{design_gradient, DEFAULT_KS_RHO_PER_MM};
 use twistopt::meshing::MeshSpec;
@@ -170,42 +170,12 @@ fn design_index(id: &str) -> Result<usize> {
     DESIGNS.iter().position(|d| d.0 == id).ok_or_else(|| anyhow!("unknown design '{id}' (D1 … D5)"))
 }
 
-/// Process CPU time (user + system, all threads) in seconds, from /proc/self/stat.
-fn cpu_time_s() -> f64 {
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let rest = &s[s.rfind(')')? + 2..];
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            // fields 14, 15 of stat (utime, stime) are 12, 13 after the ')' (state is field 3)
-            let u: f64 = f.get(11)?.parse().ok()?;
-            let k: f64 = f.get(12)?.parse().ok()?;
-            Some((u + k) / 100.0)
-        })
-        .unwrap_or(f64::NAN)
-}
 
 fn loadavg() -> f64 {
     std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next()?.parse().ok()).unwrap_or(f64::NAN)
 }
 
-fn read_rows(path: &Path) -> Vec<Value> {
-    let Ok(text) = std::fs::read_to_string(path) else { return Vec::new() };
-    text.lines().filter_map(|l| serde_json::from_str::<Value>(l).ok()).collect()
-}
 
-fn append_row(path: &Path, row: &Value) -> Result<()> {
-    // a line torn by a kill is ended first, so the new row stays a line of its own
-    let torn = std::fs::read(path).map(|b| b.last().is_some_and(|&c| c != b'\n')).unwrap_or(false);
-    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("{}", path.display()))?;
-    let mut line = if torn { "\n".to_string() } else { String::new() };
-    line += &serde_json::to_string(row)?;
-    line.push('\n');
-    f.write_all(line.as_bytes())?;
-    f.flush()?;
-    f.sync_all()?;
-    Ok(())
-}
 
 fn arg_value(args: &[String], key: &str) -> Option<String> {
     args.iter().position(|a| a == key).and_then(|i| args.get(i + 1).cloned())
@@ -249,7 +219,7 @@ fn run(args: &[String], out: &Path) -> Result<()> {
         .collect::<Result<_>>()?;
     std::fs::create_dir_all(out)?;
     let path = out.join("results.jsonl");
-    let done: BTreeSet<String> = read_rows(&path)
+    let done: BTreeSet<String> = read_json_lines(&path)
         .iter()
         .filter(|r| r["p_kPa"].as_f64() == Some(p_kpa))
         .filter_map(|r| Some(format!("{}|{}", r["variant"].as_str()?, r["design"].as_str()?)))
@@ -281,7 +251,7 @@ fn run(args: &[String], out: &Path) -> Result<()> {
             row["loadavg_end"].as_f64().unwrap_or(f64::NAN),
             row["status"].as_str().unwrap_or("?"),
         );
-        append_row(&path, &row)?;
+        append_json_line(&path, &row)?;
     }
     Ok(())
 }
@@ -296,11 +266,11 @@ fn evaluate(v: &Variant, d: usize, p_kpa: f64, threads: usize) -> Result<Value> 
     opts.formulation = v.formulation();
     opts.sector = v.sector;
     let load0 = loadavg();
-    let cpu0 = cpu_time_s();
+    let cpu0 = process_cpu_time_s();
     let t0 = Instant::now();
     let g = design_gradient(&geom, &opts, &[SceneKind::Free, SceneKind::Blocked], p_kpa, DEFAULT_KS_RHO_PER_MM, None, None)?;
     let total = t0.elapsed().as_secs_f64();
-    let cpu = cpu_time_s() - cpu0;
+    let cpu = process_cpu_time_s() - cpu0;
     let mut scenes = serde_json::Map::new();
     let mut all_ok = true;
     for (name, s) in &g.scenes {
@@ -408,7 +378,7 @@ fn mean(v: &[f64]) -> f64 {
 }
 
 fn report(out: &Path) -> Result<()> {
-    let rows = read_rows(&out.join("results.jsonl"));
+    let rows = read_json_lines(&out.join("results.jsonl"));
     if rows.is_empty() {
         bail!("no rows in {}", out.join("results.jsonl").display());
     }
@@ -676,7 +646,7 @@ fn report(out: &Path) -> Result<()> {
         dirs.sort();
         for dir in dirs {
             let s: Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json"))?)?;
-            let lines = read_rows(&dir.join("results.jsonl"));
+            let lines = read_json_lines(&dir.join("results.jsonl"));
             let n = lines.len() as f64;
             let design_time: f64 = lines.iter().filter_map(|r| r["wall_time_s"].as_f64()).sum();
             let its: f64 = lines.iter().filter_map(|r| Some(r["scenes"]["free"]["newton_iterations"].as_f64()? + r["scenes"]["blocked"]["newton_iterations"].as_f64()?)).sum();

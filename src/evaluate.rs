@@ -35,6 +35,43 @@ pub fn write_json_atomic(path: &Path, value: &impl serde::Serialize) -> Result<(
     std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// Append one JSON line (a single write, then fsync) for resumable result files; a line torn by
+/// a kill is ended first, so the new row stays a line of its own.
+pub fn append_json_line(path: &Path, row: &impl serde::Serialize) -> Result<()> {
+    use std::io::Write;
+    let torn = std::fs::read(path).map(|b| b.last().is_some_and(|&c| c != b'\n')).unwrap_or(false);
+    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut line = if torn { "\n".to_string() } else { String::new() };
+    line += &serde_json::to_string(row)?;
+    line.push('\n');
+    f.write_all(line.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+    f.sync_all()?;
+    Ok(())
+}
+
+/// The complete JSON lines of a file written by [`append_json_line`] (a torn or missing file
+/// gives the lines that parse; none when it does not exist).
+pub fn read_json_lines(path: &Path) -> Vec<serde_json::Value> {
+    let Ok(text) = std::fs::read_to_string(path) else { return Vec::new() };
+    text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect()
+}
+
+/// Process CPU time (user + system, all threads) in seconds, from /proc/self/stat (NaN where
+/// that is not available).
+pub fn process_cpu_time_s() -> f64 {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = &s[s.rfind(')')? + 2..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            // fields 14, 15 of stat (utime, stime) are 12, 13 after the ')' (state is field 3)
+            let u: f64 = f.get(11)?.parse().ok()?;
+            let k: f64 = f.get(12)?.parse().ok()?;
+            Some((u + k) / 100.0)
+        })
+        .unwrap_or(f64::NAN)
+}
+
 /// Relative tolerance for matching recorded pressures to requested ones.
 const P_TOL: f64 = 1e-9;
 

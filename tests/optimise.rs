@@ -54,6 +54,11 @@ fn optimisers_agree_on_the_torque_optimum_in_alpha() {
     let hist: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("history.json")).unwrap()).unwrap();
     let n: usize = hist["runs"].as_array().unwrap().iter().map(|r| r["evaluations"].as_array().unwrap().len()).sum();
     assert_eq!(n as u64, best["evaluations"].as_u64().unwrap());
+    // … and each was appended to evaluations.jsonl as it finished
+    let lines = std::fs::read_to_string(dir.join("evaluations.jsonl")).unwrap();
+    let rows: Vec<serde_json::Value> = lines.lines().filter(|l| !l.trim().is_empty()).map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.len(), n);
+    assert!(rows.iter().all(|r| r["run"].is_string() && r["objective"].is_number()));
     for f in ["objective.png", "objective.svg", "constraint.png", "constraint.svg"] {
         assert!(dir.join(f).exists(), "{f}");
     }

@@ -61,6 +61,9 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
         if op.stages.is_empty() { op.max_evaluations } else { op.stages.iter().map(|s| s.max_evaluations).sum() }
     );
     let finished: std::sync::Mutex<Vec<RunResult>> = std::sync::Mutex::new(Vec::new());
+    let evals_path = args.out.join("evaluations.jsonl");
+    // a new optimisation starts a new log (history.json and best.json are rewritten as well)
+    let _ = std::fs::remove_file(&evals_path);
     let runs = run_all(&op, &sec.optimisers, &starts, |r| {
         if let Ok(mut f) = finished.lock() {
             f.push(r.clone());
@@ -88,6 +91,14 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
             e.time_s,
             if e.status == "ok" { String::new() } else { format!(", {}", e.status) }
         );
+        // every evaluation also goes to evaluations.jsonl at once, so an interrupted optimisation
+        // keeps the evaluations of its unfinished runs (history.json holds finished runs)
+        let mut j = serde_json::to_value(e).unwrap_or(Value::Null);
+        j["run"] = json!(run);
+        j["evaluation"] = json!(k);
+        if let Err(err) = crate::evaluate::append_json_line(&evals_path, &j) {
+            eprintln!("warning: could not append to {}: {err:#}", evals_path.display());
+        }
     });
     let unit = op.objective.reference().1;
     let best = write_results(&args.out, &op, &v, &runs, t0.elapsed().as_secs_f64())?;

@@ -517,7 +517,7 @@ fn report(out: &Path, letter: &Letter) -> Result<()> {
             let c = &r["curves"][cid];
             let Some(points) = c["points"].as_array() else { continue };
             let xy: Vec<(f64, f64)> = points.iter().filter_map(|p| Some((p[0].as_f64()?, LETTER_SIGN * p[1].as_f64()?))).collect();
-            let label = format!("{} ({})", r["case"].as_str().unwrap_or(""), r["best_params"].as_object().map(|m| m.iter().map(|(k, v)| format!("{} = {:.1}", if k == P_GAMMA { "γ" } else { "μ" }, v.as_f64().unwrap_or(f64::NAN))).collect::<Vec<_>>().join(", ")).unwrap_or_default());
+            let label = format!("{} ({})", r["case"].as_str().unwrap_or(""), r["best_params"].as_object().map(|m| m.iter().map(|(k, v)| if k == P_GAMMA { format!("γ = {:.1}°", v.as_f64().unwrap_or(f64::NAN)) } else { format!("μ = {:.2} MPa", v.as_f64().unwrap_or(f64::NAN)) }).collect::<Vec<_>>().join(", ")).unwrap_or_default());
             let mut s = Series::new(label, xy);
             s.markers = false;
             plot = plot.with(s);

@@ -237,16 +237,43 @@ pub struct MapPlot {
     pub note: String,
 }
 
-/// Cell edges from centres (midpoints; the outer cells mirror their neighbour).
-fn cell_edges(c: &[f64]) -> Vec<(f64, f64)> {
+/// Cell edges from centres (midpoints; the outer cells mirror their neighbour; a single centre
+/// gets ± `default_half`).
+pub(crate) fn cell_edges(c: &[f64], default_half: f64) -> Vec<(f64, f64)> {
     let n = c.len();
     (0..n)
         .map(|i| {
-            let lo = if i > 0 { 0.5 * (c[i - 1] + c[i]) } else if n > 1 { c[0] - 0.5 * (c[1] - c[0]) } else { c[0] - 0.5 };
-            let hi = if i + 1 < n { 0.5 * (c[i] + c[i + 1]) } else if n > 1 { c[n - 1] + 0.5 * (c[n - 1] - c[n - 2]) } else { c[0] + 0.5 };
+            let lo = if i > 0 { 0.5 * (c[i - 1] + c[i]) } else if n > 1 { c[0] - 0.5 * (c[1] - c[0]) } else { c[0] - default_half };
+            let hi = if i + 1 < n { 0.5 * (c[i] + c[i + 1]) } else if n > 1 { c[n - 1] + 0.5 * (c[n - 1] - c[n - 2]) } else { c[0] + default_half };
             (lo, hi)
         })
         .collect()
+}
+
+/// A vertical viridis colour bar over [vmin, vmax] with about three significant digits in its
+/// labels, drawn into `area`.
+pub(crate) fn colour_bar<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, vmin: f64, vmax: f64, caption: Option<&str>, margins: (u32, u32)) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("colour bar: {e:?}");
+    let digits = (2.0 - (vmax - vmin).log10().floor()).clamp(0.0, 6.0) as usize;
+    let mut b = ChartBuilder::on(area);
+    b.margin_top(margins.0).margin_bottom(margins.1).margin_right(10).y_label_area_size(60);
+    if let Some(c) = caption {
+        b.caption(c, (FONT, 12).into_font());
+    }
+    let mut cb = b.build_cartesian_2d(0.0..1.0, vmin..vmax).map_err(err)?;
+    cb.configure_mesh().disable_mesh().disable_x_axis().label_style((FONT, 12).into_font()).y_label_formatter(&|y| format!("{:.*}", digits, y)).draw().map_err(err)?;
+    let n = 100;
+    cb.draw_series((0..n).map(|k| {
+        let a = vmin + (vmax - vmin) * k as f64 / n as f64;
+        let b = vmin + (vmax - vmin) * (k + 1) as f64 / n as f64;
+        Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color_normalized((0.5 * (a + b)) as f32, vmin as f32, vmax as f32).filled())
+    }))
+    .map_err(err)?;
+    Ok(())
 }
 
 fn draw_map<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, m: &MapPlot) -> Result<()>
@@ -267,8 +294,8 @@ where
     root.draw_text(&m.note, &TextStyle::from((FONT, 13).into_font()).color(&RGBColor(80, 80, 80)), (10, h as i32 - 18)).map_err(err)?;
     let (root, _) = root.split_vertically(h - 22);
     let (main, bar) = root.split_horizontally(w.saturating_sub(110));
-    let xe = cell_edges(&m.xs);
-    let ye = cell_edges(&m.ys);
+    let xe = cell_edges(&m.xs, 0.5);
+    let ye = cell_edges(&m.ys, 0.5);
     if xe.is_empty() || ye.is_empty() {
         bail!("map plot: empty grid");
     }
@@ -317,23 +344,7 @@ where
             .draw()
             .map_err(err)?;
     }
-    let digits = (2.0 - (vmax - vmin).log10().floor()).clamp(0.0, 6.0) as usize;
-    let mut cb = ChartBuilder::on(&bar)
-        .margin_top(45)
-        .margin_bottom(60)
-        .margin_right(10)
-        .y_label_area_size(60)
-        .caption(m.value_label.as_str(), (FONT, 12).into_font())
-        .build_cartesian_2d(0.0..1.0, vmin..vmax)
-        .map_err(err)?;
-    cb.configure_mesh().disable_mesh().disable_x_axis().label_style((FONT, 12).into_font()).y_label_formatter(&|y| format!("{:.*}", digits, y)).draw().map_err(err)?;
-    let n = 100;
-    cb.draw_series((0..n).map(|k| {
-        let a = vmin + (vmax - vmin) * k as f64 / n as f64;
-        let b = vmin + (vmax - vmin) * (k + 1) as f64 / n as f64;
-        Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color_normalized((0.5 * (a + b)) as f32, vmin as f32, vmax as f32).filled())
-    }))
-    .map_err(err)?;
+    colour_bar(&bar, vmin, vmax, Some(m.value_label.as_str()), (45, 60))?;
     root.present().map_err(err)?;
     Ok(())
 }

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use super::{Grid, Row};
 use crate::geometry::{P_ALPHA, P_L, P_R};
-use crate::plot::{register_font, FONT};
+use crate::plot::{cell_edges, colour_bar, register_font, FONT};
 
 /// The letter's representative r values (Fig. 5).
 pub const FIG5_R: [f64; 3] = [8.660254037844386, 13.2, 20.0];
@@ -47,18 +47,6 @@ pub fn panel_r_values(grid: &Grid) -> Vec<f64> {
     }
     out.sort_by(f64::total_cmp);
     out
-}
-
-/// Cell edges around sorted values (midpoints; the ends extend by half a spacing).
-fn edges(values: &[f64], default_half: f64) -> Vec<(f64, f64)> {
-    let n = values.len();
-    (0..n)
-        .map(|i| {
-            let lo = if i > 0 { 0.5 * (values[i - 1] + values[i]) } else if n > 1 { values[0] - 0.5 * (values[1] - values[0]) } else { values[0] - default_half };
-            let hi = if i + 1 < n { 0.5 * (values[i] + values[i + 1]) } else if n > 1 { values[n - 1] + 0.5 * (values[n - 1] - values[n - 2]) } else { values[0] + default_half };
-            (lo, hi)
-        })
-        .collect()
 }
 
 /// Draw the three maps into `out`; returns the files written (none when the grid has no
@@ -146,8 +134,8 @@ where
     let root = root.titled(&format!("{} over (α, l)", q.label), (FONT, 18)).map_err(err)?;
     let (main, bar) = root.split_horizontally(w.saturating_sub(110));
     let panels = main.split_evenly((1, p.rs.len()));
-    let a_edges = edges(&p.alphas, 1.0);
-    let l_edges = edges(&p.ls, 0.5);
+    let a_edges = cell_edges(&p.alphas, 1.0);
+    let l_edges = cell_edges(&p.ls, 0.5);
     let (x0, x1) = (a_edges[0].0, a_edges[a_edges.len() - 1].1);
     let (y0, y1) = (l_edges[0].0, l_edges[l_edges.len() - 1].1);
     for (area, &r) in panels.iter().zip(&p.rs) {
@@ -183,23 +171,7 @@ where
         }
         chart.draw_series(cells).map_err(err)?;
     }
-    // colour bar (labels with about three significant digits of the range)
-    let digits = (2.0 - (vmax - vmin).log10().floor()).clamp(0.0, 6.0) as usize;
-    let mut cb = ChartBuilder::on(&bar)
-        .margin_top(40)
-        .margin_bottom(55)
-        .margin_right(10)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..1.0, vmin..vmax)
-        .map_err(err)?;
-    cb.configure_mesh().disable_mesh().disable_x_axis().label_style((FONT, 12)).y_label_formatter(&|y| format!("{:.*}", digits, y)).draw().map_err(err)?;
-    let n = 100;
-    cb.draw_series((0..n).map(|k| {
-        let a = vmin + (vmax - vmin) * k as f64 / n as f64;
-        let b = vmin + (vmax - vmin) * (k + 1) as f64 / n as f64;
-        Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color_normalized((0.5 * (a + b)) as f32, vmin as f32, vmax as f32).filled())
-    }))
-    .map_err(err)?;
+    colour_bar(&bar, vmin, vmax, None, (40, 55))?;
     root.present().map_err(err)?;
     Ok(())
 }
@@ -220,9 +192,9 @@ mod tests {
 
     #[test]
     fn cell_edges_are_midpoints() {
-        let e = edges(&[10.0, 12.0, 16.0], 0.5);
+        let e = cell_edges(&[10.0, 12.0, 16.0], 0.5);
         assert_eq!(e, vec![(9.0, 11.0), (11.0, 14.0), (14.0, 18.0)]);
-        assert_eq!(edges(&[5.0], 0.5), vec![(4.5, 5.5)]);
+        assert_eq!(cell_edges(&[5.0], 0.5), vec![(4.5, 5.5)]);
     }
 
     #[test]

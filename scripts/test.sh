@@ -4,3 +4,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 cargo test --release --workspace
+# the optimiser without the nlopt feature (pure-Rust SQP only): builds and solves the same problems
+cargo test --release -p twistopt --no-default-features --test optimise

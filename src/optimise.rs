@@ -116,6 +116,8 @@ pub struct OptProblem {
     /// multi-fidelity continuation: the stages every run goes through in order (empty: one
     /// stage on `opts.mesh` with `max_evaluations`)
     pub stages: Vec<Stage>,
+    /// which stage this problem is (set by [`OptProblem::stage_problems`]; stamped on evaluations)
+    pub stage: usize,
 }
 
 /// A fidelity stage: the mesh and the evaluation budget.
@@ -264,7 +266,8 @@ impl OptProblem {
         }
         self.stages
             .iter()
-            .map(|st| {
+            .enumerate()
+            .map(|(k, st)| {
                 let mut p = self.clone();
                 p.opts.mesh = st.mesh;
                 p.opts.formulation = twistopt_solver::element::Formulation::standard(st.mesh.kind);
@@ -272,6 +275,7 @@ impl OptProblem {
                 p.xtol_rel = st.xtol_rel;
                 p.ftol_rel = st.ftol_rel;
                 p.stages.clear();
+                p.stage = k;
                 (st.label.clone(), p)
             })
             .collect()
@@ -286,6 +290,8 @@ impl OptProblem {
         let (oref, _) = self.objective.reference();
         let mut ev = Evaluation::from_parts(x, 0.0, vec![0.0; n], vec![1.0; m], vec![vec![0.0; n]; m]);
         ev.design = design.clone();
+        ev.stage = self.stage;
+        ev.mesh = self.opts.mesh.size_string();
         ev.objective = f64::NAN;
         ev.gradient.clear();
         ev.constraints.clear();
@@ -868,15 +874,11 @@ pub fn run_all(
             let mut statuses = Vec::new();
             let mut x = starts[*si].clone();
             let (mut best, mut g0) = (None, 1.0);
-            for (k, (label, sp)) in stages.iter().enumerate() {
+            for (label, sp) in &stages {
                 let (run_name, counter, each) = (&run_name, &counter, &each);
-                let mesh = sp.opts.mesh.size_string();
                 let mut session = Session::new(sp, move |e| {
                     counter.set(counter.get() + 1);
-                    let mut e = e.clone();
-                    e.stage = k;
-                    e.mesh = mesh.clone();
-                    each(run_name, counter.get(), &e)
+                    each(run_name, counter.get(), e)
                 });
                 let status = match optimiser(name) {
                     Some(o) => o.run(&mut session, &x),
@@ -890,12 +892,7 @@ pub fn run_all(
                 }
                 g0 = session.evaluations.first().map_or(1.0, |e| e.df.iter().fold(0.0f64, |a, v| a.max(v.abs())));
                 best = best.map(|b| b + evaluations.len());
-                let mesh = sp.opts.mesh.size_string();
-                evaluations.extend(session.evaluations.into_iter().map(|mut e| {
-                    e.stage = k;
-                    e.mesh = mesh.clone();
-                    e
-                }));
+                evaluations.extend(session.evaluations);
             }
             // the result is the last stage's best (earlier stages are another fidelity)
             let (kkt, multipliers) = match best {
@@ -1028,6 +1025,7 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
             xtol_rel: sec.xtol_rel,
             ftol_rel: sec.ftol_rel,
             stages,
+            stage: 0,
         },
         sec,
     ))

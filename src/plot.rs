@@ -250,6 +250,19 @@ pub(crate) fn cell_edges(c: &[f64], default_half: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The colour scale of a map: the finite values' range, [0, 1] when there are none, widened by
+/// ±0.5 when it is a single value.
+pub(crate) fn colour_range(vals: &[f64]) -> (f64, f64) {
+    let (vmin, vmax) = vals.iter().filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if !vmin.is_finite() {
+        (0.0, 1.0)
+    } else if vmax - vmin <= 1e-12 * (1.0 + vmax.abs()) {
+        (vmin - 0.5, vmax + 0.5)
+    } else {
+        (vmin, vmax)
+    }
+}
+
 /// A vertical viridis colour bar over [vmin, vmax] with about three significant digits in its
 /// labels, drawn into `area`.
 pub(crate) fn colour_bar<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, vmin: f64, vmax: f64, caption: Option<&str>, margins: (u32, u32)) -> Result<()>
@@ -284,12 +297,7 @@ where
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("map plot: {e:?}");
     root.fill(&WHITE).map_err(err)?;
     let vals: Vec<f64> = m.values.iter().flatten().flatten().copied().filter(|v| v.is_finite()).collect();
-    let (mut vmin, mut vmax) = vals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    if !vmin.is_finite() {
-        (vmin, vmax) = (0.0, 1.0);
-    } else if vmax - vmin <= 1e-12 * (1.0 + vmax.abs()) {
-        (vmin, vmax) = (vmin - 0.5, vmax + 0.5);
-    }
+    let (vmin, vmax) = colour_range(&vals);
     let (w, h) = root.dim_in_pixel();
     root.draw_text(&m.note, &TextStyle::from((FONT, 13).into_font()).color(&RGBColor(80, 80, 80)), (10, h as i32 - 18)).map_err(err)?;
     let (root, _) = root.split_vertically(h - 22);

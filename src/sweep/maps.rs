@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use super::{Grid, Row};
 use crate::geometry::{P_ALPHA, P_L, P_R};
-use crate::plot::{cell_edges, colour_bar, register_font, FONT};
+use crate::plot::{cell_edges, colour_bar, colour_range, register_font, FONT};
 
 /// The letter's representative r values (Fig. 5).
 pub const FIG5_R: [f64; 3] = [8.660254037844386, 13.2, 20.0];
@@ -117,12 +117,7 @@ where
             }
         }
     }
-    let (mut vmin, mut vmax) = vals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    if !vmin.is_finite() {
-        (vmin, vmax) = (0.0, 1.0);
-    } else if vmax - vmin <= 1e-12 * (1.0 + vmax.abs()) {
-        (vmin, vmax) = (vmin - 0.5, vmax + 0.5);
-    }
+    let (vmin, vmax) = colour_range(&vals);
     let (w, h) = root.dim_in_pixel();
     root.draw_text(
         "light grey: infeasible (max radius above the ballooning limit); dark grey: failed (no Ω); white: not computed",

@@ -212,7 +212,7 @@ fn run_solves(case: &Case, letter: &Letter, preset: &str, params: &BTreeMap<Stri
             let w = warm.get(s.id).map(|(p, q)| (q.as_slice(), *p));
             let cap = s.limit.then_some(LIMIT_CAP_FACTOR * s.p_kpa);
             let g = scene_gradient(&geom, &opts, s.kind, s.p_kpa, DEFAULT_KS_RHO_PER_MM, w, cap)?;
-            let ok = g.status == "converged";
+            let ok = g.status == twistopt::scene::SceneStatus::Converged;
             if ok {
                 warm.insert(s.id, (g.p_kpa, g.q.clone()));
             }

@@ -274,7 +274,7 @@ fn evaluate(v: &Variant, d: usize, p_kpa: f64, threads: usize) -> Result<Value> 
     let mut scenes = serde_json::Map::new();
     let mut all_ok = true;
     for (name, s) in &g.scenes {
-        let ok = s.status == "converged";
+        let ok = s.status == twistopt::scene::SceneStatus::Converged;
         all_ok &= ok;
         scenes.insert(
             name.clone(),

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use crate::export::{write_pvd, write_vtu, DataArray};
 use crate::plot::{line_plot, LinePlot, Series};
 use crate::problem::{LoadPlan, Problem, Validated};
-use crate::scene::{energy_density, run_pressure, run_torque_rotation, SceneKind, SceneResult, StepRecord, TorqueRotation};
+use crate::scene::{energy_density, run_pressure, run_torque_rotation, SceneKind, SceneResult, SceneStatus, StepRecord, TorqueRotation};
 
 /// Write pretty JSON through a temporary file and a rename, so that an interrupted run never
 /// leaves a truncated file (non-finite numbers become null).
@@ -128,6 +128,11 @@ pub fn select_steps(r: &mut SceneResult, plan: &LoadPlan) {
     if let Some(f) = r.fields.as_mut() {
         f.displacements = idx.iter().filter_map(|&i| f.displacements.get(i).cloned()).collect();
     }
+    if r.states.len() == n {
+        r.states = idx.iter().map(|&i| r.states[i].clone()).collect();
+    } else {
+        r.states.clear();
+    }
 }
 
 /// Linear interpolation of `value` over steps sorted by pressure; None outside the range.
@@ -184,6 +189,22 @@ pub fn common_pressure(free: &[StepRecord], blocked: &[StepRecord], positive: bo
     };
     let (pf, pb) = (extreme(free)?, extreme(blocked)?);
     Some((if positive { pf.min(pb) } else { pf.max(pb) }, pf, pb))
+}
+
+/// Give a (free-like, blocked-like) pair of scene results an exact step at their common pressure
+/// on each branch ([`common_pressure`]: the lower of the two failure pressures), solved from the
+/// nearest recorded state of the scene that lacks it, so that Ω by the letter's rule needs no
+/// interpolation between steps.
+pub fn complete_pair(geom: &crate::geometry::ActuatorGeometry, opts: &crate::scene::SceneOptions, free: &mut SceneResult, blocked: &mut SceneResult) {
+    for positive in [true, false] {
+        let Some((pc, _, _)) = common_pressure(&free.steps, &blocked.steps, positive) else { continue };
+        for r in [&mut *free, &mut *blocked] {
+            if let Some(kind) = SceneKind::parse(&r.scene) {
+                // a model that cannot be built leaves the result as it is (interpolated)
+                let _ = crate::scene::add_step_at(geom, opts, kind, r, pc);
+            }
+        }
+    }
 }
 
 /// Ω by the letter's rule on one branch: at the common pressure ([`common_pressure`]).
@@ -320,22 +341,8 @@ fn torque_json(mode: &str, t: &TorqueRotation) -> Value {
         "points": pts,
         "nonlinearity": if t.nonlinearity.is_finite() { t.nonlinearity } else { 0.0 },
         "status": t.status,
+        "cause": t.cause,
     })
-}
-
-/// A scene that could not be built (e.g. an unusable mesh) as a failed result.
-fn failed_scene(kind: SceneKind, cause: String) -> SceneResult {
-    SceneResult {
-        scene: kind.name().to_string(),
-        status: "model-error".into(),
-        cause,
-        steps: Vec::new(),
-        dofs: 0,
-        elements: 0,
-        newton_iterations: 0,
-        wall_time_s: 0.0,
-        fields: None,
-    }
 }
 
 /// Run a problem and write every output to `out`. `log` receives progress lines.
@@ -353,7 +360,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
         log(&format!("scene {} ...", kind.name()));
         let mut r = match run_pressure(&v.geometry, &opts, kind, &targets) {
             Ok(r) => r,
-            Err(e) => failed_scene(kind, format!("{e}").replace('\n', " ")),
+            Err(e) => SceneResult::model_error(kind, format!("{e}").replace('\n', " ")),
         };
         select_steps(&mut r, &v.load);
         let pmax = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::max);
@@ -377,10 +384,18 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
             handles
                 .into_iter()
                 .zip(group)
-                .map(|(h, &k)| h.join().unwrap_or_else(|_| failed_scene(k, "the scene's thread panicked".into())))
+                .map(|(h, &k)| h.join().unwrap_or_else(|_| SceneResult::model_error(k, "the scene's thread panicked".into())))
                 .collect()
         });
         results.extend(done);
+    }
+    // Ω's common pressures as exact steps of both scenes of each pair
+    for (fk, bk) in [(SceneKind::Free, SceneKind::Blocked), (SceneKind::PureTwist, SceneKind::PureTwistBlocked)] {
+        let (fi, bi) = (results.iter().position(|r| r.scene == fk.name()), results.iter().position(|r| r.scene == bk.name()));
+        if let (Some(fi), Some(bi)) = (fi, bi) {
+            let (a, b) = if fi < bi { let (l, r) = results.split_at_mut(bi); (&mut l[fi], &mut r[0]) } else { let (l, r) = results.split_at_mut(fi); (&mut r[0], &mut l[bi]) };
+            complete_pair(&v.geometry, &opts, a, b);
+        }
     }
     for r in &results {
         let csv = out.join(format!("{}.csv", r.scene));
@@ -431,7 +446,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
                     for &p in &tr.pressures_kpa {
                         torque.push((
                             mode.to_string(),
-                            TorqueRotation { p_kpa: p, free_theta_deg: 0.0, points: vec![], nonlinearity: 0.0, status: format!("model-error: {e}") },
+                            TorqueRotation { p_kpa: p, free_theta_deg: 0.0, points: vec![], nonlinearity: 0.0, status: SceneStatus::ModelError, cause: e.to_string() },
                         ));
                     }
                 }
@@ -531,7 +546,7 @@ mod tests {
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
-        SceneResult { scene: name.into(), status: "completed".into(), cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, wall_time_s: 0.0, fields: None }
+        SceneResult { scene: name.into(), status: crate::scene::SceneStatus::Completed, cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, path: Default::default(), wall_time_s: 0.0, fields: None, states: Vec::new() }
     }
 
     #[test]

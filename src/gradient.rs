@@ -29,10 +29,9 @@ use std::time::Instant;
 
 use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
 use crate::meshing::mesh_shape_derivatives;
-use crate::scene::{continue_to_failure, equilibrium, SceneError, SceneKind, SceneModel, SceneOptions};
+use crate::scene::{continue_to_failure, equilibrium, SceneError, SceneKind, SceneModel, SceneOptions, SceneStatus};
 use twistopt_solver::adjoint::{self, Direction, Functional};
 use twistopt_solver::material::Material;
-use twistopt_solver::solve::factor_converged;
 
 /// Default KS parameter (1/mm). The gap to the true max is at most ln(N)/ρ and in practice a few
 /// hundredths of a millimetre (reported per evaluation as `ks_gap_mm`).
@@ -62,8 +61,8 @@ pub struct Cost {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SceneGradient {
     pub scene: String,
-    /// `converged` when the target pressure was reached, else the ramp's failure status
-    pub status: String,
+    /// `converged` when the target pressure was reached, else the path's failure status
+    pub status: SceneStatus,
     pub cause: String,
     /// the pressure of the state (the target unless the ramp failed before it)
     #[serde(rename = "p_kPa")]
@@ -83,7 +82,7 @@ pub struct SceneGradient {
     /// cap; and dp_lim/d(parameter) by the null-vector formula ([`adjoint::limit_sensitivity`])
     #[serde(rename = "p_limit_kPa")]
     pub p_limit_kpa: Option<f64>,
-    pub p_limit_cause: Option<String>,
+    pub p_limit_cause: Option<SceneStatus>,
     pub p_limit_gradient: BTreeMap<String, f64>,
     pub cost: Cost,
     /// reduced state (for warm starts of the next evaluation)
@@ -140,10 +139,10 @@ pub fn scene_gradient(
 ) -> Result<SceneGradient, SceneError> {
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
-    let eq = equilibrium(&sm, opts, p_kpa, warm);
+    let mut eq = equilibrium(&sm, opts, p_kpa, warm);
     let forward_time_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let (status, cause) = eq.end.clone().unwrap_or_else(|| ("converged".into(), String::new()));
+    let (status, cause) = eq.end.clone().unwrap_or_else(|| (SceneStatus::Converged, String::new()));
     let mut out = SceneGradient {
         scene: kind.name().into(),
         status,
@@ -165,23 +164,21 @@ pub fn scene_gradient(
     let fset = functionals(&sm, rho);
     let dirs = directions(geom, opts, &sm)?;
     let failed = |out: &mut SceneGradient, why: String| {
-        out.status = "gradient-failed".into();
+        out.status = SceneStatus::GradientFailed;
         out.cause = why;
         out.ks_gap_mm = 0.0;
     };
-    let a = match sm.model.assemble(&eq.q, &eq.loads, true) {
+    let a = match sm.model.assemble(&eq.q, &eq.loads, false) {
         Ok(a) => a,
         Err(e) => {
             failed(&mut out, format!("assembly at the final state: {e}"));
             return Ok(out);
         }
     };
-    let factor = match factor_converged(&sm.model, &a) {
-        Ok(f) => f,
-        Err(e) => {
-            failed(&mut out, format!("tangent at the final state: {e}"));
-            return Ok(out);
-        }
+    // the converged tangent's factor, handed on by the path follower
+    let Some((_, factor)) = eq.factor.take() else {
+        failed(&mut out, "no factor of the tangent at the final state".into());
+        return Ok(out);
     };
     let solver_f: Vec<Functional> = fset.iter().map(|f| f.1.clone()).collect();
     match adjoint::sensitivities(&sm.model, &eq.q, &eq.loads, &factor, &solver_f, &dirs) {
@@ -214,16 +211,22 @@ pub fn scene_gradient(
         // the limit state: this one if the ramp already failed before p, else continue upward
         let cont = continue_to_failure(&sm, opts, &eq, cap);
         out.cost.limit_newton_iterations = cont.newton_iterations();
+        if eq.end.is_some() {
+            // the forward path already ended at the limit: its factor went to the adjoint above
+            eq.factor = sm.model.assemble(&eq.q, &eq.loads, true).ok().and_then(|a| {
+                let k = a.k?;
+                let f = sm.model.factor(&k).or_else(|_| sm.model.factor_indefinite(&k)).ok()?;
+                Some((k, f))
+            });
+        }
         let lim = if eq.end.is_some() { Some(&eq) } else { cont.found() };
         if let Some(l) = lim {
             out.p_limit_kpa = Some(l.record.p_kpa);
-            out.p_limit_cause = l.end.as_ref().map(|e| e.0.clone());
+            out.p_limit_cause = l.end.as_ref().map(|e| e.0);
             let shape_dirs: Vec<Direction> = dirs.iter().filter(|d| d.name != P_PRESSURE).cloned().collect();
-            let sens = sm.model.assemble(&l.q, &l.loads, true).ok().and_then(|a| {
-                let k = a.k?;
-                let f = sm.model.factor(&k).ok()?;
-                adjoint::limit_sensitivity(&sm.model, &l.q, &l.loads, &f, &k, &shape_dirs).ok()
-            });
+            // the limit state's tangent and factor, handed on by the path follower (any inertia:
+            // inverse iteration finds the eigenvalue nearest zero)
+            let sens = l.factor.as_ref().and_then(|(k, f)| adjoint::limit_sensitivity(&sm.model, &l.q, &l.loads, f, k, &shape_dirs).ok());
             if let Some(sens) = sens {
                 // dp (MPa) → kPa
                 for (d, v) in shape_dirs.iter().zip(&sens.dp) {
@@ -461,7 +464,7 @@ pub fn omega_gradient(free: &SceneGradient, held: &SceneGradient) -> Option<Omeg
     let gq = held.gradients.get("tau_Nm")?;
     let k = crate::scene::energy_density(1.0, 1.0);
     let gradient = gt.iter().map(|(name, dth)| (name.clone(), k * (tau * dth + th * gq.get(name).copied().unwrap_or(0.0)))).collect();
-    let valid = free.status == "converged" && held.status == "converged" && (free.p_kpa - held.p_kpa).abs() < 1e-9;
+    let valid = free.status == SceneStatus::Converged && held.status == SceneStatus::Converged && (free.p_kpa - held.p_kpa).abs() < 1e-9;
     Some(OmegaGradient { value: k * th * tau, gradient, valid })
 }
 

@@ -50,7 +50,7 @@ use std::time::Instant;
 
 use crate::geometry::{ActuatorGeometry, DesignSpace, RangePolicy, R_TUBE};
 use crate::gradient::{design_gradient, DesignGradient, WarmStarts, P_PRESSURE};
-use crate::scene::{SceneKind, SceneOptions};
+use crate::scene::{SceneKind, SceneOptions, SceneStatus};
 
 /// What to maximise.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -155,7 +155,7 @@ pub struct Evaluation {
     #[serde(rename = "p_limit_kPa")]
     pub p_limit_kpa: Option<f64>,
     /// per scene: status (converged, or what ended the ramp) and the pressure reached
-    pub scenes: BTreeMap<String, (String, f64)>,
+    pub scenes: BTreeMap<String, (SceneStatus, f64)>,
     pub status: String,
     pub newton_iterations: usize,
     pub adjoint_solves: usize,
@@ -337,12 +337,12 @@ impl OptProblem {
         let mut p_reached = p;
         let mut all_ok = true;
         for (name, s) in &dg.scenes {
-            ev.scenes.insert(name.clone(), (s.status.clone(), s.p_kpa));
-            if s.status != "converged" {
+            ev.scenes.insert(name.clone(), (s.status, s.p_kpa));
+            if s.status != SceneStatus::Converged {
                 all_ok = false;
                 p_reached = p_reached.min(s.p_kpa);
             }
-            if s.status == "gradient-failed" {
+            if s.status == SceneStatus::GradientFailed {
                 return fail(ev, format!("{name}: {}", s.cause));
             }
         }
@@ -414,7 +414,7 @@ impl OptProblem {
             }
         }
         if !all_ok {
-            ev.status = format!("failed-before-p: {}", dg.scenes.values().filter(|s| s.status != "converged").map(|s| format!("{} {} at {:.3} kPa", s.scene, s.status, s.p_kpa)).collect::<Vec<_>>().join(", "));
+            ev.status = format!("failed-before-p: {}", dg.scenes.values().filter(|s| s.status != SceneStatus::Converged).map(|s| format!("{} {} at {:.3} kPa", s.scene, s.status, s.p_kpa)).collect::<Vec<_>>().join(", "));
             // no objective at p: the optimiser sees the last good point's (the module docs)
             match last_good {
                 Some(lg) => {

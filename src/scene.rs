@@ -31,8 +31,10 @@ use std::time::Instant;
 use twistopt_solver::dofmap::{BodyDof, Constraints, Cyclic, DofSpec, RigidBody};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::Material;
-use twistopt_solver::model::{resultant, Assembled, Loads, Model, ModelError};
-use twistopt_solver::solve::{follow_path, PathStatus, StepOptions};
+use twistopt_solver::adjoint::Functional;
+use twistopt_solver::continuation::{correct, follow, ContinuationOptions, LoadPath, PathEnd, PathStats, PointKind, Stop};
+use twistopt_solver::model::{Assembled, Factor, Loads, Model, ModelError};
+use twistopt_solver::solve::FailureCause;
 
 /// Default bulk-to-shear modulus ratio κ/μ. Measured on the paper example (coarse sector, 40 kPa):
 /// going from κ/μ = 300 to 3000 changes θ by 0.12 %, τ by 0.16 %, the axial displacement by
@@ -104,7 +106,8 @@ pub struct SceneOptions {
     pub sector: bool,
     /// Ballooning limit on the max deformed radius (mm); the letter's 1.15·R0 = 28.75.
     pub ballooning_limit_mm: f64,
-    pub steps: StepOptions,
+    /// path-following options (step control, Newton tolerances, event location)
+    pub steps: ContinuationOptions,
     /// Keep the nodal displacements of every recorded step (for VTU time series).
     pub keep_fields: bool,
     /// The cavity pressure also pushes on the cap (default true, the closed-cavity model); false =
@@ -121,7 +124,7 @@ impl SceneOptions {
             material,
             sector: true,
             ballooning_limit_mm: 1.15 * R0_ENVELOPE,
-            steps: StepOptions { initial: 0.25, max: 0.5, min: 1e-2, ..StepOptions::default() },
+            steps: ContinuationOptions::default(),
             keep_fields: false,
             cap_load: true,
         }
@@ -169,23 +172,105 @@ pub struct StepRecord {
     pub newton_iterations: usize,
 }
 
+/// How a scene's load path ended (serialised as the kebab-case names).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SceneStatus {
+    /// the last target was reached
+    Completed,
+    /// the max deformed radius reached the ballooning limit (located on the path)
+    Ballooning,
+    /// two cavity walls came together under vacuum (contact is not modelled)
+    SelfContact,
+    /// a pressure maximum (fold) or a loss of stability with the pressure rising (bifurcation)
+    LimitPoint,
+    Inversion,
+    Divergence,
+    IterationLimit,
+    StepLimit,
+    /// a state at the requested pressure (gradients)
+    Converged,
+    /// the adjoint could not be evaluated at the state
+    GradientFailed,
+    /// the scene's model could not be built
+    ModelError,
+}
+
+impl SceneStatus {
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneStatus::Completed => "completed",
+            SceneStatus::Ballooning => "ballooning",
+            SceneStatus::SelfContact => "self-contact",
+            SceneStatus::LimitPoint => "limit-point",
+            SceneStatus::Inversion => "inversion",
+            SceneStatus::Divergence => "divergence",
+            SceneStatus::IterationLimit => "iteration-limit",
+            SceneStatus::StepLimit => "step-limit",
+            SceneStatus::Converged => "converged",
+            SceneStatus::GradientFailed => "gradient-failed",
+            SceneStatus::ModelError => "model-error",
+        }
+    }
+    fn from_failure(f: FailureCause) -> SceneStatus {
+        match f {
+            FailureCause::LimitPoint => SceneStatus::LimitPoint,
+            FailureCause::Inversion => SceneStatus::Inversion,
+            FailureCause::Divergence => SceneStatus::Divergence,
+            FailureCause::IterationLimit => SceneStatus::IterationLimit,
+            FailureCause::StepLimit => SceneStatus::StepLimit,
+        }
+    }
+}
+
+impl std::fmt::Display for SceneStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// The result of a pressure ramp of one scene.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SceneResult {
     pub scene: String,
-    /// `completed`, `ballooning`, `self-contact`, `limit-point`, `inversion`, `divergence`,
-    /// `iteration-limit`, `step-limit`
-    pub status: String,
+    pub status: SceneStatus,
     pub cause: String,
     pub steps: Vec<StepRecord>,
     pub dofs: usize,
     pub elements: usize,
+    /// every Newton iteration, failed attempts and event location included
     pub newton_iterations: usize,
+    /// the path follower's work counts (both branches)
+    #[serde(default)]
+    pub path: PathStats,
     pub wall_time_s: f64,
     /// With `SceneOptions::keep_fields`: the mesh and the nodal displacements of each step
     /// (same order as `steps`).
     #[serde(skip)]
     pub fields: Option<SceneFields>,
+    /// The reduced state of each step (same order as `steps`), for warm starts and for exact
+    /// evaluations at a pressure between steps.
+    #[serde(skip)]
+    pub states: Vec<Vec<f64>>,
+}
+
+impl SceneResult {
+    /// A scene whose model could not be built, as a result with status `model-error`.
+    pub fn model_error(kind: SceneKind, cause: String) -> SceneResult {
+        SceneResult {
+            scene: kind.name().to_string(),
+            status: SceneStatus::ModelError,
+            cause,
+            steps: Vec::new(),
+            dofs: 0,
+            elements: 0,
+            newton_iterations: 0,
+            path: PathStats::default(),
+            wall_time_s: 0.0,
+            fields: None,
+            states: Vec::new(),
+        }
+    }
 }
 
 /// Mesh and per-step displacement fields of a scene run.
@@ -268,37 +353,56 @@ impl SceneModel {
         l
     }
 
-    /// Scene outputs of a converged state.
-    pub fn record(&self, a: &Assembled, loads: &Loads, q: &[f64], newton_iterations: usize) -> StepRecord {
-        let x0 = &self.model.mesh.nodes;
-        let cap = &a.kin[0];
-        let (_, m) = resultant(&self.top_nodes, x0, &a.u, &a.r_full, [
-            self.cap_reference[0] + cap.c[0],
-            self.cap_reference[1] + cap.c[1],
-            self.cap_reference[2] + cap.c[2],
-        ]);
-        let max_radius = x0
-            .iter()
-            .zip(&a.u)
-            .map(|(x, u)| ((x[0] + u[0]).powi(2) + (x[1] + u[1]).powi(2)).sqrt())
-            .fold(0.0, f64::max);
-        let _ = q;
+    /// The functionals a scene path records, in the order of the `OUT_*` slots: the cap rotation
+    /// about z, its axial translation, the generalised reaction of the rotation (the moment the
+    /// actuator exerts on the cap about its current reference point, negated), the max deformed
+    /// radius over all nodes and the cavity volume of the modelled part. The gradient module
+    /// differentiates the same functionals.
+    pub fn functionals(&self) -> Vec<Functional> {
+        vec![
+            Functional::BodyDof { body: 0, dof: 5 },
+            Functional::BodyDof { body: 0, dof: 2 },
+            Functional::BodyReaction { body: 0, dof: 5 },
+            Functional::MaxRadius { nodes: (0..self.model.mesh.nodes.len()).collect() },
+            Functional::CavityVolume,
+        ]
+    }
+
+    /// The scene's load path from `from` to `to`, recording [`SceneModel::functionals`] (and,
+    /// with `contact_gap`, the self-contact margin in slot `OUT_CONTACT`).
+    pub fn path(&self, from: Loads, to: Loads, contact_gap: Option<f64>) -> LoadPath<'_> {
+        let mut lp = LoadPath::new(&self.model, from, to, self.functionals());
+        if let Some(gap) = contact_gap {
+            lp.extra.push(Box::new(move |a: &Assembled| self.contact_margin(a, gap)));
+        }
+        lp
+    }
+
+    /// The step record of recorded outputs (slots as in [`SceneModel::functionals`]).
+    fn step_record(&self, out: &[f64], p_kpa: f64, min_det_f: f64, newton_iterations: usize) -> StepRecord {
         StepRecord {
-            p_kpa: loads.pressure * 1e3,
-            theta_deg: cap.psi[2].to_degrees(),
-            axial_mm: cap.c[2],
-            tau_nm: -m[2] * self.multiplicity * 1e-3,
-            max_radius_mm: max_radius,
-            cavity_volume_mm3: a.volume * self.multiplicity,
-            min_det_f: a.min_det_f,
+            p_kpa,
+            theta_deg: out[OUT_THETA].to_degrees(),
+            axial_mm: out[OUT_AXIAL],
+            tau_nm: -out[OUT_REACTION] * self.multiplicity * 1e-3,
+            max_radius_mm: out[OUT_RADIUS],
+            cavity_volume_mm3: out[OUT_VOLUME] * self.multiplicity,
+            min_det_f,
             newton_iterations,
         }
     }
 
-    /// Whether opposite cavity walls would touch: two cavity nodes that are far apart in the
-    /// reference configuration (more than 2t) come closer than `gap` (an indicator for vacuum;
-    /// contact itself is not modelled). Rotated copies of the sector are included.
-    pub fn self_contact(&self, a: &Assembled, gap: f64) -> bool {
+    /// Scene outputs of an assembled state, through the same functionals as a path.
+    pub fn record(&self, a: &Assembled, loads: &Loads, newton_iterations: usize) -> StepRecord {
+        let st = twistopt_solver::adjoint::State::from_assembly(&self.model, a);
+        let out: Vec<f64> = self.functionals().iter().map(|f| f.eval(&self.model, &st).unwrap_or(f64::NAN)).collect();
+        self.step_record(&out, loads.pressure * 1e3, a.min_det_f, newton_iterations)
+    }
+
+    /// The self-contact margin: the smallest current distance, less `gap`, between two cavity
+    /// nodes that are farther apart than 2t in the reference configuration (rotated copies of the
+    /// sector included). Contact itself is not modelled; a vacuum path stops where this reaches 0.
+    pub fn contact_margin(&self, a: &Assembled, gap: f64) -> f64 {
         let x0 = &self.model.mesh.nodes;
         let cur: Vec<([f64; 3], [f64; 3])> = self
             .cavity_nodes
@@ -307,20 +411,26 @@ impl SceneModel {
             .collect();
         let copies: Vec<f64> = if self.multiplicity > 1.0 { vec![0.0, 2.0 * std::f64::consts::PI / 3.0, -2.0 * std::f64::consts::PI / 3.0] } else { vec![0.0] };
         let far = 2.0 * T_WALL;
+        let mut dmin = f64::INFINITY;
         for ang in copies {
             let (s, c) = ang.sin_cos();
             let rot = |p: [f64; 3]| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
             for (i, (xi0, xi)) in cur.iter().enumerate() {
                 for (xj0, xj) in cur.iter().skip(if ang == 0.0 { i + 1 } else { 0 }) {
                     let (xj0, xj) = (rot(*xj0), rot(*xj));
-                    let d0 = dist(*xi0, xj0);
-                    if d0 > far && dist(*xi, xj) < gap {
-                        return true;
+                    if dist(*xi0, xj0) > far {
+                        dmin = dmin.min(dist(*xi, xj));
                     }
                 }
             }
         }
-        false
+        dmin - gap
+    }
+
+    /// The contact gap of a vacuum path: a quarter of the element size around the cavity, at most 0.5 mm.
+    fn contact_gap(&self) -> f64 {
+        let hmesh = 2.0 * std::f64::consts::PI * 15.0 / (2.0 * self.mesh.spec.n_around as f64);
+        (0.25 * hmesh).min(0.5)
     }
 }
 
@@ -328,82 +438,74 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// State carried along a ramp.
-struct Ramp<'a> {
-    sm: &'a SceneModel,
-    opts: &'a SceneOptions,
+/// Output slots of a scene path (see [`SceneModel::functionals`]).
+pub const OUT_THETA: usize = 0;
+pub const OUT_AXIAL: usize = 1;
+pub const OUT_REACTION: usize = 2;
+pub const OUT_RADIUS: usize = 3;
+pub const OUT_VOLUME: usize = 4;
+pub const OUT_CONTACT: usize = 5;
+
+/// A converged point of a scene path with its reduced state.
+struct ScenePoint {
+    record: StepRecord,
     q: Vec<f64>,
-    loads: Loads,
-    steps: Vec<StepRecord>,
-    fields: Vec<Vec<[f64; 3]>>,
-    iterations: usize,
-    gap: f64,
-    /// smallest pressure step (kPa) of the step halving before a failure is accepted
-    floor_kpa: f64,
 }
 
-impl<'a> Ramp<'a> {
-    fn new(sm: &'a SceneModel, opts: &'a SceneOptions) -> Self {
-        let hmesh = 2.0 * std::f64::consts::PI * 15.0 / (2.0 * sm.mesh.spec.n_around as f64);
-        Ramp { sm, opts, q: vec![0.0; sm.model.n_reduced()], loads: sm.loads(0.0, 0.0), steps: Vec::new(), fields: Vec::new(), iterations: 0, gap: (0.25 * hmesh).min(0.5), floor_kpa: 0.1 }
-    }
+/// The outcome of one pressure path of a scene.
+struct ScenePath {
+    points: Vec<ScenePoint>,
+    /// why the path ended before its end: (status, cause)
+    end: Option<(SceneStatus, String)>,
+    stats: PathStats,
+    /// tangent and factor at the last point
+    last: Option<(Vec<f64>, Factor)>,
+}
 
-    /// Follow the loads to `to`; returns None when done, or the (status, cause) that ended it.
-    fn go(&mut self, to: Loads) -> Option<(String, String)> {
-        let sm = self.sm;
-        let limit = self.opts.ballooning_limit_mm;
-        let gap = self.gap;
-        let mut stop_rec = Vec::new();
-        let keep = self.opts.keep_fields;
-        // smallest step: floor_kpa (or the options' fraction if finer), whatever the segment length
-        let mut steps_opts = self.opts.steps.clone();
-        let span = ((to.pressure - self.loads.pressure).abs() * 1e3).max(1e-9);
-        steps_opts.min = steps_opts.min.min(self.floor_kpa / span).max(1e-6);
-        let mut fields = Vec::new();
-        let res = follow_path(&sm.model, &self.q, &self.loads, &to, &steps_opts, |info| {
-            let rec = sm.record(info.assembled, info.loads, info.q, info.newton_iterations);
-            let over = rec.max_radius_mm > limit;
-            let contact = info.loads.pressure < 0.0 && sm.self_contact(info.assembled, gap);
-            stop_rec.push(rec);
-            if keep {
-                fields.push(info.assembled.u.clone());
-            }
-            if over {
-                Some("ballooning".to_string())
-            } else if contact {
-                Some("self-contact".to_string())
-            } else {
-                None
-            }
-        });
-        self.steps.extend(stop_rec);
-        self.fields.extend(fields);
-        self.iterations += res.newton_iterations;
-        self.q = res.q;
-        self.loads = res.loads;
-        match res.status {
-            PathStatus::Completed => None,
-            PathStatus::Stopped(reason) => {
-                let cause = if reason == "ballooning" {
-                    format!("max deformed radius exceeded the ballooning limit {limit:.2} mm")
-                } else {
-                    format!("two cavity walls came closer than {gap:.2} mm (contact is not modelled)")
-                };
-                Some((reason, cause))
-            }
-            PathStatus::Failed(f) => {
-                let p = self.loads.pressure * 1e3;
-                let cause = match f {
-                    twistopt_solver::solve::FailureCause::LimitPoint => format!("tangent lost positive definiteness beyond p = {p:.3} kPa (pressure maximum / instability)"),
-                    twistopt_solver::solve::FailureCause::Inversion => format!("an element inverted beyond p = {p:.3} kPa"),
-                    twistopt_solver::solve::FailureCause::Divergence => format!("Newton diverged beyond p = {p:.3} kPa at the smallest step"),
-                    twistopt_solver::solve::FailureCause::IterationLimit => format!("Newton hit its iteration limit beyond p = {p:.3} kPa at the smallest step"),
-                    twistopt_solver::solve::FailureCause::StepLimit => format!("step limit reached at p = {p:.3} kPa"),
-                };
-                Some((f.as_str().to_string(), cause))
-            }
+/// Follow the scene's pressure from the state `q0` at `p0_kpa` to `p_end_kpa` with stations at
+/// `stations_kpa`; the ballooning limit and (for vacuum) self-contact stop it where `stop` says.
+fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
+    let vacuum = p_end_kpa < 0.0;
+    let gap = sm.contact_gap();
+    let lp = sm.path(sm.loads(0.0, 0.0), sm.loads(p_end_kpa, 0.0), (vacuum && stop).then_some(gap));
+    let mut stops = Vec::new();
+    if stop {
+        stops.push(Stop { name: "ballooning".into(), output: OUT_RADIUS, threshold: opts.ballooning_limit_mm, rising: true });
+        if vacuum {
+            stops.push(Stop { name: "self-contact".into(), output: OUT_CONTACT, threshold: 0.0, rising: false });
         }
     }
+    let stations: Vec<f64> = stations_kpa.iter().map(|p| p / p_end_kpa).collect();
+    let lam0 = if p_end_kpa != 0.0 { p0_kpa / p_end_kpa } else { 0.0 };
+    let res = follow(&lp, q0, lam0, 1.0, &stations, &stops, &opts.steps);
+    let points: Vec<ScenePoint> = res
+        .points
+        .iter()
+        .map(|pt| ScenePoint { record: sm.step_record(&pt.outputs, lp.loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations), q: pt.q.clone() })
+        .collect();
+    let p_last = points.last().map(|p| p.record.p_kpa).unwrap_or(p0_kpa);
+    let limit = opts.ballooning_limit_mm;
+    let end = match res.end {
+        PathEnd::Completed => None,
+        PathEnd::Stopped(i) if stops[i].name == "ballooning" => Some((SceneStatus::Ballooning, format!("max deformed radius reached the ballooning limit {limit:.2} mm at p = {p_last:.4} kPa"))),
+        PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
+        PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),
+        PathEnd::Instability => Some((
+            SceneStatus::LimitPoint,
+            format!("the tangent loses positive definiteness beyond p = {p_last:.4} kPa with the pressure still rising (a bifurcation; located on the path)"),
+        )),
+        PathEnd::Failed(f) => {
+            let cause = match f {
+                FailureCause::LimitPoint => format!("tangent lost positive definiteness beyond p = {p_last:.3} kPa (pressure maximum / instability)"),
+                FailureCause::Inversion => format!("an element inverted beyond p = {p_last:.3} kPa"),
+                FailureCause::Divergence => format!("Newton diverged beyond p = {p_last:.3} kPa at the smallest step"),
+                FailureCause::IterationLimit => format!("Newton hit its iteration limit beyond p = {p_last:.3} kPa at the smallest step"),
+                FailureCause::StepLimit => format!("step limit reached at p = {p_last:.3} kPa"),
+            };
+            Some((SceneStatus::from_failure(f), cause))
+        }
+    };
+    ScenePath { points, end, stats: res.stats, last: res.last }
 }
 
 /// A converged state of a scene at one pressure (for sensitivities and warm starts).
@@ -412,92 +514,87 @@ pub struct Equilibrium {
     pub loads: Loads,
     /// the last converged state's record (its pressure is the target unless `end` is set)
     pub record: StepRecord,
+    /// every Newton iteration spent, failed attempts included
     pub newton_iterations: usize,
-    /// why the ramp ended before the target (status, cause); None = target reached
-    pub end: Option<(String, String)>,
+    pub path: PathStats,
+    /// why the path ended before the target (status, cause); None = target reached
+    pub end: Option<(SceneStatus, String)>,
     /// whether the warm start was used (Newton straight from the given state converged)
     pub warm_started: bool,
+    /// the tangent (values) and its factor at this state, handed on to the adjoint
+    pub factor: Option<(Vec<f64>, Factor)>,
+}
+
+impl Equilibrium {
+    fn from_path(sm: &SceneModel, path: ScenePath, extra_iterations: usize, warm_started: bool) -> Equilibrium {
+        let mut path = path;
+        let last = path.points.pop();
+        let (q, record) = match last {
+            Some(p) => (p.q, p.record),
+            None => {
+                let q = vec![0.0; sm.model.n_reduced()];
+                let record = sm.model.assemble(&q, &sm.loads(0.0, 0.0), false).map(|a| sm.record(&a, &sm.loads(0.0, 0.0), 0)).unwrap_or(StepRecord {
+                    p_kpa: 0.0,
+                    theta_deg: 0.0,
+                    axial_mm: 0.0,
+                    tau_nm: 0.0,
+                    max_radius_mm: 0.0,
+                    cavity_volume_mm3: 0.0,
+                    min_det_f: 1.0,
+                    newton_iterations: 0,
+                });
+                (q, record)
+            }
+        };
+        let loads = sm.loads(record.p_kpa, 0.0);
+        Equilibrium { q, loads, record, newton_iterations: path.stats.newton_iterations + extra_iterations, path: path.stats, end: path.end, warm_started, factor: path.last }
+    }
 }
 
 /// The equilibrium of a scene at pressure `p_kpa`, without the ballooning stop (the caller
 /// constrains the radius). With `warm` = (q, p_warm), a converged state of a nearby design (same
 /// mesh topology) at pressure p_warm, Newton first solves the new design at p_warm from q and the
-/// pressure then follows from p_warm to p_kpa (a short continuation); if that first solve fails,
-/// the pressure is ramped from the unloaded state.
+/// path then follows from p_warm to p_kpa; if that first solve fails, the path starts from the
+/// unloaded state. A path that meets a pressure maximum or an instability before `p_kpa` ends
+/// there (`end`).
 pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Option<(&[f64], f64)>) -> Equilibrium {
-    let target = sm.loads(p_kpa, 0.0);
-    let mut o = opts.clone();
-    o.ballooning_limit_mm = f64::INFINITY;
-    o.keep_fields = false;
-    let mut iterations = 0;
-    if let Some((w, pw)) = warm.filter(|w| w.0.len() == sm.model.n_reduced() && w.1.is_finite()) {
-        let mut q = w.to_vec();
-        let start = sm.loads(pw, 0.0);
-        match twistopt_solver::solve::newton(&sm.model, &mut q, &start, &opts.steps.newton) {
-            Ok((stats, a)) => {
-                iterations += stats.iterations;
-                if pw == p_kpa {
-                    let record = sm.record(&a, &target, &q, stats.iterations);
-                    return Equilibrium { q, loads: target, record, newton_iterations: iterations, end: None, warm_started: true };
-                }
-                let mut ramp = Ramp::new(sm, &o);
-                ramp.q = q;
-                ramp.loads = start;
-                let end = ramp.go(target);
-                let record = ramp.steps.last().cloned().unwrap_or_else(|| sm.record(&a, &ramp.loads, &ramp.q, 0));
-                return Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: iterations + ramp.iterations, end, warm_started: true };
+    let mut spent = 0;
+    if let Some((w, pw)) = warm.filter(|w| w.0.len() == sm.model.n_reduced() && w.1.is_finite() && p_kpa != 0.0) {
+        // the warm state solved at its own pressure on the new design, then the path onwards
+        let lp = sm.path(sm.loads(0.0, 0.0), sm.loads(p_kpa, 0.0), None);
+        let lam_w = pw / p_kpa;
+        match correct(&lp, w, lam_w, None, &opts.steps.newton, opts.steps.mixed_tangent, None) {
+            Ok(s) if s.stable => {
+                spent += s.iterations;
+                let path = pressure_path(sm, opts, &s.q, pw, p_kpa, &[], false);
+                return Equilibrium::from_path(sm, path, spent, true);
             }
-            Err(_) => iterations += opts.steps.newton.max_iter,
+            Ok(s) => spent += s.iterations,
+            Err((_, its)) => spent += its,
         }
     }
-    let mut ramp = Ramp::new(sm, &o);
-    let end = ramp.go(target);
-    let record = match ramp.steps.last() {
-        Some(r) => r.clone(),
-        None => {
-            let l0 = sm.loads(0.0, 0.0);
-            let a = sm.model.assemble(&ramp.q, &l0, false);
-            match a {
-                Ok(a) => sm.record(&a, &l0, &ramp.q, 0),
-                Err(_) => StepRecord { p_kpa: 0.0, theta_deg: 0.0, axial_mm: 0.0, tau_nm: 0.0, max_radius_mm: 0.0, cavity_volume_mm3: 0.0, min_det_f: 1.0, newton_iterations: 0 },
-            }
-        }
-    };
-    Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: iterations + ramp.iterations, end, warm_started: false }
+    let path = pressure_path(sm, opts, &vec![0.0; sm.model.n_reduced()], 0.0, p_kpa, &[], false);
+    Equilibrium::from_path(sm, path, spent, false)
 }
 
 /// Continue an equilibrium's pressure upward to `p_cap` (kPa) without the ballooning stop:
-/// `BelowCap` when it reaches the cap, else the last stable state (the pressure maximum, for a
-/// limit point) with the failure in `end`.
-///
-/// The pressure maximum is located under volume control ([`pressure_maximum`]: exact to 1e-6
-/// relative, about half the cost); when that cannot decide (a bifurcation, Newton failures) the
-/// pressure ramp with step halving to 0.1 kPa is used instead.
+/// `BelowCap` when it reaches the cap, else the state where it fails — the pressure maximum
+/// located under volume control to 1e-6 relative, the last stable state before a bifurcation, or
+/// the last converged state before a solver failure — with the failure in `end`.
 pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibrium, p_cap: f64) -> LimitOutcome {
     if from.end.is_some() || p_cap <= from.loads.pressure * 1e3 {
         return LimitOutcome::BelowCap { newton_iterations: 0 };
     }
-    let mut spent = 0;
-    match pressure_maximum(sm, from, p_cap, &opts.steps.newton) {
-        Ok(found) => return found,
-        Err(iterations) => spent += iterations,
+    let path = pressure_path(sm, opts, &from.q, from.loads.pressure * 1e3, p_cap, &[], false);
+    if path.end.is_none() {
+        return LimitOutcome::BelowCap { newton_iterations: path.stats.newton_iterations };
     }
-    let mut o = opts.clone();
-    o.ballooning_limit_mm = f64::INFINITY;
-    o.keep_fields = false;
-    let mut ramp = Ramp::new(sm, &o);
-    ramp.q = from.q.clone();
-    ramp.loads = from.loads.clone();
-    let Some(end) = ramp.go(sm.loads(p_cap, 0.0)) else {
-        return LimitOutcome::BelowCap { newton_iterations: spent + ramp.iterations };
-    };
-    let record = ramp.steps.last().cloned().unwrap_or_else(|| from.record.clone());
-    LimitOutcome::Found(Equilibrium { q: ramp.q, loads: ramp.loads, record, newton_iterations: spent + ramp.iterations, end: Some(end), warm_started: false })
+    LimitOutcome::Found(Equilibrium::from_path(sm, path, 0, false))
 }
 
 /// What a search for the failure above an equilibrium found.
 pub enum LimitOutcome {
-    /// the last stable state (at the pressure maximum for a fold), with the failure in `end`
+    /// the state where the path fails (at the pressure maximum for a fold), with the failure in `end`
     Found(Equilibrium),
     /// the pressure reached the cap without failing
     BelowCap { newton_iterations: usize },
@@ -518,271 +615,36 @@ impl LimitOutcome {
     }
 }
 
-/// Step floor (kPa) of a positive pressure ramp before the volume-controlled search for the
-/// pressure maximum takes over.
-pub const COARSE_FLOOR_KPA: f64 = 2.0;
-
-/// A converged volume-controlled state with its pressure slope dp/dV = 1/(gᵀK⁻¹g).
-struct VolState {
-    q: Vec<f64>,
-    p: f64,
-    v: f64,
-    slope: f64,
-    /// the fixed-pressure tangent is positive definite (stable under pressure control)
-    pd: bool,
-    a: Assembled,
-}
-
-fn vol_state(sm: &SceneModel, q: Vec<f64>, p: f64, a: Assembled) -> Option<VolState> {
-    let k = a.k.as_ref()?;
-    let (fac, pd) = match sm.model.factor(k) {
-        Ok(f) => (f, true),
-        Err(_) => (sm.model.factor_indefinite(k).ok()?, false),
-    };
-    let b = fac.solve(&a.dvol).ok()?;
-    let c: f64 = a.dvol.iter().zip(&b).map(|(g, x)| g * x).sum();
-    let slope = 1.0 / c;
-    (slope.is_finite() && a.volume.is_finite()).then(|| VolState { q, p, v: a.volume, slope, pd, a })
-}
-
-/// The pressure maximum above a converged, stable equilibrium, located under volume control
-/// (the cavity volume prescribed, the pressure an unknown; `solve::newton_volume`), where the
-/// path passes the maximum smoothly instead of failing at it. At each converged state the slope
-/// dp/dV = 1/(gᵀK⁻¹g) (g = ∂V/∂q) is known, so the maximum (dp/dV = 0) is found by secant steps
-/// on the slope, typically in 4–8 volume-controlled Newton solves, to |Δp| ≤ 1e-6·p.
-///
-/// Returns `BelowCap` when the pressure passes `p_cap_kpa` with no maximum below it; `Found`
-/// with the state at the maximum (status `limit-point`) — or, when the tangent loses positive
-/// definiteness while the pressure still rises (a bifurcation, not a fold), the last stable state
-/// found by bisecting the volume (to 1e-4 relative in p); `Err(newton_iterations_spent)` when the
-/// volume-controlled path cannot decide (Newton failures): the caller falls back to the ramp.
-pub fn pressure_maximum(sm: &SceneModel, from: &Equilibrium, p_cap_kpa: f64, newton: &twistopt_solver::solve::NewtonOptions) -> Result<LimitOutcome, usize> {
-    pressure_maximum_path(sm, from, p_cap_kpa, newton, f64::INFINITY, &mut Vec::new())
-}
-
-/// As [`pressure_maximum`], also recording the stable states it passes (rising pressure, in
-/// order, with their displacement fields; the final state included) in `path`, and stopping with status `ballooning` at the first whose max radius exceeds
-/// `ballooning_limit_mm`.
-pub fn pressure_maximum_path(
-    sm: &SceneModel,
-    from: &Equilibrium,
-    p_cap_kpa: f64,
-    newton: &twistopt_solver::solve::NewtonOptions,
-    ballooning_limit_mm: f64,
-    path: &mut Vec<(StepRecord, Vec<[f64; 3]>)>,
-) -> Result<LimitOutcome, usize> {
-    if from.end.is_some() || p_cap_kpa <= from.loads.pressure * 1e3 {
-        return Ok(LimitOutcome::BelowCap { newton_iterations: 0 });
-    }
-    let base = from.loads.clone();
-    let cap = p_cap_kpa * 1e-3;
-    let a0 = sm.model.assemble(&from.q, &base, true).map_err(|_| 0usize)?;
-    let s0 = vol_state(sm, from.q.clone(), base.pressure, a0).ok_or(0usize)?;
-    if !s0.pd || s0.slope <= 0.0 {
-        return Err(0);
-    }
-    let mut iterations = 0usize;
-    let mut prev: Option<VolState> = None;
-    let mut last = s0;
-    let v_ref = last.v.abs().max(1e-12);
-    // first volume step: the linear prediction of half the way to the cap, at most 5 % of V
-    // volume step bound: starts at the linear volume change of 2 % of the pressure (≥ 0.5 kPa),
-    // grows ×1.5 after easy solves, halves after failures
-    let mut dv_max = ((0.02 * last.p).max(0.5e-3) / last.slope).min(0.05 * v_ref);
-    let mut converged = false;
-    for _ in 0..40 {
-        // next target volume: the zero of the slope's secant (p(V) concave near a maximum)
-        let mut v_next = last.v + dv_max;
-        if let Some(pv) = &prev {
-            let curv = (last.slope - pv.slope) / (last.v - pv.v);
-            if curv < 0.0 && curv.is_finite() {
-                v_next = last.v - last.slope / curv;
-            } else if last.slope < 0.0 {
-                v_next = last.v - dv_max;
-            }
-        }
-        // the pressure error of the best state: |Δp| ≈ ½|slope·(V* − V)|
-        if prev.is_some() && 0.5 * (v_next - last.v).abs() * last.slope.abs() <= 1e-6 * last.p.abs() {
-            converged = true;
-            break;
-        }
-        v_next = v_next.clamp(last.v - dv_max, last.v + dv_max);
-        let mut solved = None;
-        let mut step = v_next - last.v;
-        for _cut in 0..6 {
-            let (mut q, mut p) = (last.q.clone(), last.p);
-            match twistopt_solver::solve::newton_volume(&sm.model, &mut q, &mut p, &base, last.v + step, newton) {
-                Ok((st, a)) => {
-                    iterations += st.iterations;
-                    if st.iterations <= 5 {
-                        dv_max = (1.5 * dv_max).max(1.5 * step.abs());
-                    }
-                    solved = Some((q, p, a));
-                    break;
-                }
-                Err(_) => {
-                    iterations += newton.max_iter.min(5);
-                    step *= 0.5;
-                    dv_max = 0.5 * step.abs().max(dv_max * 0.5);
-                }
-            }
-        }
-        let (q, p, a) = solved.ok_or(iterations)?;
-        let st = vol_state(sm, q, p, a).ok_or(iterations)?;
-        if std::env::var_os("TWISTOPT_TRACE").is_some() {
-            eprintln!("[pmax] V {:.6e} → {:.6e}: p {:.5} kPa slope {:.4e} pd {} ({} its total)", last.v, st.v, st.p * 1e3, st.slope, st.pd, iterations);
-        }
-        if st.p > cap && st.slope > 0.0 {
-            return Ok(LimitOutcome::BelowCap { newton_iterations: iterations });
-        }
-        if st.pd && st.slope > 0.0 && path.last().map_or(st.p > base.pressure, |r| st.p * 1e3 > r.0.p_kpa) {
-            let (_, rec) = vol_record(sm, &base, &st, iterations);
-            if rec.max_radius_mm > ballooning_limit_mm {
-                let cause = format!("max deformed radius exceeded the ballooning limit {ballooning_limit_mm:.2} mm");
-                return Ok(vol_found(sm, &base, st, iterations, ("ballooning".into(), cause), path));
-            }
-            path.push((rec, st.a.u.clone()));
-        }
-        if !st.pd && st.slope > 0.0 {
-            // stability lost with the pressure still rising: a bifurcation, not a pressure maximum.
-            // Bisect the volume for the last stable state (the point a pressure ramp fails at).
-            let (mut good, mut bad_v) = (last, st.v);
-            for _ in 0..8 {
-                if (bad_v - good.v).abs() * good.slope <= 1e-4 * good.p.abs() {
-                    break;
-                }
-                let vm = 0.5 * (good.v + bad_v);
-                let (mut q, mut p) = (good.q.clone(), good.p);
-                match twistopt_solver::solve::newton_volume(&sm.model, &mut q, &mut p, &base, vm, newton) {
-                    Ok((it, a)) => {
-                        iterations += it.iterations;
-                        match vol_state(sm, q, p, a) {
-                            Some(m) if m.pd => good = m,
-                            Some(_) => bad_v = vm,
-                            None => break,
-                        }
-                    }
-                    Err(_) => {
-                        iterations += newton.max_iter.min(5);
-                        break;
-                    }
-                }
-            }
-            let cause = format!("the tangent loses positive definiteness beyond p = {:.4} kPa with the pressure still rising (a bifurcation; located under volume control)", good.p * 1e3);
-            return Ok(vol_found(sm, &base, good, iterations, ("limit-point".into(), cause), path));
-        }
-        // keep the new state and, of the two before, the one closer to the maximum
-        let old = std::mem::replace(&mut last, st);
-        let keep_old = match &prev {
-            Some(pv) => old.slope.abs() <= pv.slope.abs() || old.slope * last.slope < 0.0,
-            None => true,
-        };
-        if keep_old {
-            prev = Some(old);
-        }
-        if let Some(pv) = &prev {
-            if pv.slope.abs() < last.slope.abs() {
-                let pv2 = prev.take().expect("checked");
-                prev = Some(std::mem::replace(&mut last, pv2));
-            }
-        }
-    }
-    if !converged || last.slope.abs() * v_ref > 0.05 * last.p.abs() {
-        return Err(iterations);
-    }
-    let cause = format!("pressure maximum at p = {:.4} kPa (located under volume control)", last.p * 1e3);
-    Ok(vol_found(sm, &base, last, iterations, ("limit-point".into(), cause), path))
-}
-
-/// The loads and scene record of a volume-controlled state (the other loads as in `base`).
-fn vol_record(sm: &SceneModel, base: &Loads, st: &VolState, iterations: usize) -> (Loads, StepRecord) {
-    let mut loads = sm.loads(st.p * 1e3, 0.0);
-    loads.presc = base.presc.clone();
-    let record = sm.record(&st.a, &loads, &st.q, iterations);
-    (loads, record)
-}
-
-/// A volume-controlled state as the end of a path (appended to `path` unless already there).
-fn vol_found(sm: &SceneModel, base: &Loads, st: VolState, iterations: usize, end: (String, String), path: &mut Vec<(StepRecord, Vec<[f64; 3]>)>) -> LimitOutcome {
-    let (loads, record) = vol_record(sm, base, &st, iterations);
-    if path.last().map_or(true, |r| r.0.p_kpa < record.p_kpa) {
-        path.push((record.clone(), st.a.u));
-    }
-    LimitOutcome::Found(Equilibrium { q: st.q, loads, record, newton_iterations: iterations, end: Some(end), warm_started: false })
-}
-
 /// Ramp a scene's pressure through the given targets (kPa). Positive and negative targets are
-/// two branches, each ramped from the unloaded state through its targets in order of magnitude;
-/// a branch ends at its last target, at the ballooning limit, at self-contact (vacuum) or at a
-/// solver failure. Steps are returned sorted by pressure.
+/// two branches, each followed from the unloaded state with a point at every target; a branch
+/// ends at its last target, at the ballooning limit, at self-contact (vacuum), at a pressure
+/// maximum or instability (located on the path), or at a solver failure. Steps are returned
+/// sorted by pressure.
 pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64]) -> Result<SceneResult, SceneError> {
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
-    let mut pos: Vec<f64> = targets_kpa.iter().copied().filter(|p| *p > 0.0).collect();
-    let mut neg: Vec<f64> = targets_kpa.iter().copied().filter(|p| *p < 0.0).collect();
-    pos.sort_by(|a, b| a.partial_cmp(b).unwrap());
-    neg.sort_by(|a, b| b.partial_cmp(a).unwrap());
-    let mut steps = Vec::new();
-    let mut fields: Vec<Vec<[f64; 3]>> = Vec::new();
-    let mut status = ("completed".to_string(), String::new());
-    let mut iterations = 0;
-    // the unloaded state
-    {
-        let l0 = sm.loads(0.0, 0.0);
-        let a = sm.model.assemble(&vec![0.0; sm.model.n_reduced()], &l0, false).map_err(|e| SceneError::Initial(e.to_string()))?;
-        steps.push(sm.record(&a, &l0, &[], 0));
-        fields.push(a.u.clone());
-    }
+    let mut pos: Vec<f64> = targets_kpa.iter().copied().filter(|p| *p > 0.0 && p.is_finite()).collect();
+    let mut neg: Vec<f64> = targets_kpa.iter().copied().filter(|p| *p < 0.0 && p.is_finite()).collect();
+    pos.sort_by(f64::total_cmp);
+    neg.sort_by(|a, b| b.total_cmp(a));
+    let l0 = sm.loads(0.0, 0.0);
+    let q0 = vec![0.0; sm.model.n_reduced()];
+    let a0 = sm.model.assemble(&q0, &l0, false).map_err(|e| SceneError::Initial(e.to_string()))?;
+    let mut steps = vec![sm.record(&a0, &l0, 0)];
+    let mut states = vec![q0.clone()];
+    let mut status = (SceneStatus::Completed, String::new());
+    let mut stats = PathStats::default();
     for branch in [pos, neg] {
-        if branch.is_empty() {
-            continue;
+        let Some(&p_end) = branch.last() else { continue };
+        let path = pressure_path(&sm, opts, &q0, 0.0, p_end, &branch[..branch.len() - 1], true);
+        stats.add(&path.stats);
+        for p in path.points.into_iter().skip(1) {
+            steps.push(p.record);
+            states.push(p.q);
         }
-        let mut ramp = Ramp::new(&sm, opts);
-        let mut end = None;
-        let positive = branch[0] > 0.0;
-        let p_last = *branch.last().expect("non-empty");
-        if positive {
-            // a failure is first detected with a coarse step floor, then pinned under volume control
-            ramp.floor_kpa = COARSE_FLOOR_KPA;
-        }
-        let mut i = 0;
-        while i < branch.len() {
-            let Some(e) = ramp.go(sm.loads(branch[i], 0.0)) else {
-                i += 1;
-                continue;
-            };
-            if positive && ramp.floor_kpa > 0.1 && !matches!(e.0.as_str(), "ballooning" | "self-contact") {
-                let eq = Equilibrium { q: ramp.q.clone(), loads: ramp.loads.clone(), record: ramp.steps.last().cloned().unwrap_or_else(|| steps[0].clone()), newton_iterations: 0, end: None, warm_started: false };
-                let mut path = Vec::new();
-                match pressure_maximum_path(&sm, &eq, p_last, &opts.steps.newton, opts.ballooning_limit_mm, &mut path) {
-                    Ok(LimitOutcome::Found(m)) => {
-                        ramp.iterations += m.newton_iterations;
-                        for (rec, u) in path {
-                            ramp.steps.push(rec);
-                            if opts.keep_fields {
-                                ramp.fields.push(u);
-                            }
-                        }
-                        end = m.end;
-                        break;
-                    }
-                    Ok(LimitOutcome::BelowCap { newton_iterations }) | Err(newton_iterations) => {
-                        // undecided: resume the pressure ramp with the fine floor
-                        ramp.iterations += newton_iterations;
-                        ramp.floor_kpa = 0.1;
-                        continue;
-                    }
-                }
-            }
-            end = Some(e);
-            break;
-        }
-        steps.extend(ramp.steps);
-        fields.extend(ramp.fields);
-        iterations += ramp.iterations;
-        if let Some(e) = end {
-            // the positive branch's end is the scene's status unless it completed
-            if status.0 == "completed" {
+        // the positive branch's end is the scene's status unless it completed
+        if let Some(e) = path.end {
+            if status.0 == SceneStatus::Completed {
                 status = e;
             }
         }
@@ -790,16 +652,17 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
     let mut order: Vec<usize> = (0..steps.len()).collect();
     order.sort_by(|&a, &b| steps[a].p_kpa.total_cmp(&steps[b].p_kpa));
     let steps: Vec<StepRecord> = order.iter().map(|&i| steps[i].clone()).collect();
-    let fields = if opts.keep_fields {
-        Some(SceneFields {
-            mesh: sm.model.mesh.clone(),
-            formulation: opts.formulation,
-            material: opts.material,
-            displacements: order.iter().map(|&i| fields[i].clone()).collect(),
-        })
-    } else {
-        None
-    };
+    let states: Vec<Vec<f64>> = order.iter().map(|&i| states[i].clone()).collect();
+    let fields = opts.keep_fields.then(|| SceneFields {
+        mesh: sm.model.mesh.clone(),
+        formulation: opts.formulation,
+        material: opts.material,
+        displacements: steps
+            .iter()
+            .zip(&states)
+            .map(|(s, q)| sm.model.assemble(q, &sm.loads(s.p_kpa, 0.0), false).map(|a| a.u).unwrap_or_else(|_| vec![[0.0; 3]; sm.model.mesh.nodes.len()]))
+            .collect(),
+    });
     Ok(SceneResult {
         scene: kind.name().to_string(),
         status: status.0,
@@ -807,10 +670,48 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
         steps,
         dofs: sm.model.n_reduced(),
         elements: sm.model.mesh.n_elements(),
-        newton_iterations: iterations,
+        newton_iterations: stats.newton_iterations,
+        path: stats,
         wall_time_s: t0.elapsed().as_secs_f64(),
         fields,
+        states,
     })
+}
+
+/// Add to `r` (a result of `kind` on `geom`) an exact step at pressure `p_kpa` inside one of its
+/// branches, solved from the nearest recorded state between it and the unloaded state (no-op
+/// when a step is already there or p lies beyond the branch). Used to evaluate the letter's Ω at
+/// the lower of two scenes' failure pressures without interpolation.
+pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, r: &mut SceneResult, p_kpa: f64) -> Result<(), SceneError> {
+    let tol = 1e-9 * p_kpa.abs().max(1.0);
+    if p_kpa == 0.0 || !p_kpa.is_finite() || r.steps.iter().any(|s| (s.p_kpa - p_kpa).abs() <= tol) || r.states.len() != r.steps.len() {
+        return Ok(());
+    }
+    let sg = p_kpa.signum();
+    let reach = r.steps.iter().map(|s| s.p_kpa * sg).fold(0.0, f64::max);
+    if p_kpa * sg > reach {
+        return Ok(());
+    }
+    let below = r.steps.iter().enumerate().filter(|(_, s)| s.p_kpa * sg >= 0.0 && s.p_kpa * sg < p_kpa * sg).max_by(|a, b| (a.1.p_kpa * sg).total_cmp(&(b.1.p_kpa * sg)));
+    let Some(i) = below.map(|(i, _)| i) else { return Ok(()) };
+    let sm = SceneModel::build(geom, opts, kind)?;
+    let path = pressure_path(&sm, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false);
+    r.newton_iterations += path.stats.newton_iterations;
+    r.path.add(&path.stats);
+    if path.end.is_none() {
+        if let Some(mut p) = path.points.into_iter().last() {
+            p.record.p_kpa = p_kpa;
+            let k = r.steps.partition_point(|s| s.p_kpa < p_kpa);
+            if let Some(f) = r.fields.as_mut() {
+                if let Ok(a) = sm.model.assemble(&p.q, &sm.loads(p_kpa, 0.0), false) {
+                    f.displacements.insert(k.min(f.displacements.len()), a.u);
+                }
+            }
+            r.steps.insert(k, p.record);
+            r.states.insert(k, p.q);
+        }
+    }
+    Ok(())
 }
 
 /// Torque at prescribed cap rotations from 0 to the free rotation, at one pressure.
@@ -823,45 +724,56 @@ pub struct TorqueRotation {
     pub points: Vec<(f64, f64)>,
     /// max |τ − line through the end points| / |τ(0)|
     pub nonlinearity: f64,
-    pub status: String,
+    pub status: SceneStatus,
+    #[serde(default)]
+    pub cause: String,
 }
 
 /// The letter's Fig. 4b: for each pressure, the free rotation θ_f (from the `free` scene when
-/// `axial_free`, else `pure-twist`), then τ at `n_points` rotations from 0 to θ_f.
-pub fn run_torque_rotation(
-    geom: &ActuatorGeometry,
-    opts: &SceneOptions,
-    axial_free: bool,
-    pressures_kpa: &[f64],
-    n_points: usize,
-) -> Result<Vec<TorqueRotation>, SceneError> {
+/// `axial_free`, else `pure-twist`), then τ at `n_points` rotations from 0 to θ_f (a path in the
+/// prescribed rotation at fixed pressure, with a point at each rotation).
+pub fn run_torque_rotation(geom: &ActuatorGeometry, opts: &SceneOptions, axial_free: bool, pressures_kpa: &[f64], n_points: usize) -> Result<Vec<TorqueRotation>, SceneError> {
     let (free_kind, held_kind) = if axial_free { (SceneKind::Free, SceneKind::Blocked) } else { (SceneKind::PureTwist, SceneKind::PureTwistBlocked) };
     let free = SceneModel::build(geom, opts, free_kind)?;
     let held = SceneModel::build(geom, opts, held_kind)?;
+    let q0 = vec![0.0; free.model.n_reduced()];
+    let n = n_points.max(1);
     let mut out = Vec::new();
     for &p in pressures_kpa {
-        let mut rf = Ramp::new(&free, opts);
-        let fe = rf.go(free.loads(p, 0.0));
-        let theta_f = rf.steps.last().map(|s| s.theta_deg).unwrap_or(0.0);
-        if fe.is_some() {
-            out.push(TorqueRotation { p_kpa: p, free_theta_deg: theta_f, points: vec![], nonlinearity: 0.0, status: fe.unwrap().0 });
+        let fp = pressure_path(&free, opts, &q0, 0.0, p, &[], true);
+        let theta_f = fp.points.last().map(|s| s.record.theta_deg).unwrap_or(0.0);
+        if let Some(e) = fp.end {
+            out.push(TorqueRotation { p_kpa: p, free_theta_deg: theta_f, points: vec![], nonlinearity: 0.0, status: e.0, cause: e.1 });
             continue;
         }
-        let mut rh = Ramp::new(&held, opts);
-        let mut status = "completed".to_string();
+        let hp = pressure_path(&held, opts, &vec![0.0; held.model.n_reduced()], 0.0, p, &[], true);
+        let mut status = SceneStatus::Completed;
+        let mut cause = String::new();
         let mut pts = Vec::new();
-        if let Some(e) = rh.go(held.loads(p, 0.0)) {
-            status = e.0;
-        } else {
-            pts.push((0.0, rh.steps.last().map(|s| s.tau_nm).unwrap_or(0.0)));
-            for k in 1..=n_points.max(1) {
-                let th = theta_f * k as f64 / n_points.max(1) as f64;
-                rh.steps.clear();
-                if let Some(e) = rh.go(held.loads(p, th.to_radians())) {
-                    status = e.0;
-                    break;
+        match (hp.end, hp.points.last()) {
+            (Some(e), _) => (status, cause) = e,
+            (None, None) => status = SceneStatus::Divergence,
+            (None, Some(last)) => {
+                pts.push((0.0, last.record.tau_nm));
+                // the rotation path at fixed pressure (no volume control: λ is the rotation)
+                let mut lp = held.path(held.loads(p, 0.0), held.loads(p, theta_f.to_radians()), None);
+                lp.volume_control = false;
+                let mut o = opts.steps.clone();
+                o.switch_stiffness = None;
+                o.initial = 1.0 / n as f64;
+                let stations: Vec<f64> = (1..n).map(|k| k as f64 / n as f64).collect();
+                let res = follow(&lp, &last.q, 0.0, 1.0, &stations, &[], &o);
+                for pt in res.points.iter().filter(|pt| !matches!(pt.kind, PointKind::Start | PointKind::Step)) {
+                    let rec = held.step_record(&pt.outputs, p, pt.min_det, pt.newton_iterations);
+                    pts.push((theta_f * pt.lam, rec.tau_nm));
                 }
-                pts.push((th, rh.steps.last().map(|s| s.tau_nm).unwrap_or(0.0)));
+                if let PathEnd::Failed(f) = res.end {
+                    status = SceneStatus::from_failure(f);
+                    cause = format!("the rotation path failed ({}) at θ = {:.3}°", f.as_str(), theta_f * res.points.last().map_or(0.0, |p| p.lam));
+                } else if res.end != PathEnd::Completed {
+                    status = SceneStatus::LimitPoint;
+                    cause = "the rotation path lost stability".into();
+                }
             }
         }
         let nonlinearity = match (pts.first(), pts.last()) {
@@ -874,7 +786,7 @@ pub fn run_torque_rotation(
                 .fold(0.0, f64::max),
             _ => 0.0,
         };
-        out.push(TorqueRotation { p_kpa: p, free_theta_deg: theta_f, points: pts, nonlinearity, status });
+        out.push(TorqueRotation { p_kpa: p, free_theta_deg: theta_f, points: pts, nonlinearity, status, cause });
     }
     Ok(out)
 }

@@ -32,7 +32,7 @@ use std::time::Instant;
 use crate::evaluate::{common_pressure, interpolate, omega_at_pressure, select_steps};
 use crate::geometry::{ActuatorGeometry, Design, DesignSpace, RangePolicy, P_ALPHA, P_L, P_R};
 use crate::problem::{apply_override, LoadPlan, Problem, Validated};
-use crate::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, StepRecord};
+use crate::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, SceneStatus, StepRecord};
 
 /// Format tag of manifests and rows.
 pub const FORMAT: &str = "twistopt-sweep/1";
@@ -513,7 +513,7 @@ fn write_atomic(path: &Path, text: &str) -> Result<()> {
 /// Per-scene outcome in a row.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SceneSummary {
-    pub status: String,
+    pub status: SceneStatus,
     pub cause: String,
     /// highest converged pressure (kPa)
     #[serde(rename = "p_reached_kPa")]
@@ -665,7 +665,7 @@ const MODES: [(&str, SceneKind, SceneKind); 2] =
 
 fn scene_summary(r: &SceneResult) -> SceneSummary {
     SceneSummary {
-        status: r.status.clone(),
+        status: r.status,
         cause: r.cause.replace('\n', " "),
         p_reached_kpa: p_reached(&r.steps),
         steps: r.steps.len(),
@@ -717,6 +717,14 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
             Err(e) => errors.push(format!("{}: {}", kind.name(), e.to_string().replace('\n', " "))),
         }
     }
+    // Ω's common pressure as an exact step of both scenes of each pair
+    for (_, fk, bk) in MODES {
+        let (fi, bi) = (results.iter().position(|r| r.scene == fk.name()), results.iter().position(|r| r.scene == bk.name()));
+        if let (Some(fi), Some(bi)) = (fi, bi) {
+            let (a, b) = if fi < bi { let (l, r) = results.split_at_mut(bi); (&mut l[fi], &mut r[0]) } else { let (l, r) = results.split_at_mut(fi); (&mut r[0], &mut l[bi]) };
+            crate::evaluate::complete_pair(&geom, opts, a, b);
+        }
+    }
     row.scenes = results.iter().map(|r| (r.scene.clone(), scene_summary(r))).collect();
     let find = |k: SceneKind| results.iter().find(|r| r.scene == k.name());
     for (name, fk, bk) in MODES {
@@ -732,7 +740,7 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
     }
     let ends: Vec<String> = results
         .iter()
-        .filter(|r| r.status != "completed")
+        .filter(|r| r.status != SceneStatus::Completed)
         .map(|r| format!("{}: {} ({})", r.scene, r.status, r.cause.replace('\n', " ")))
         .collect();
     if !errors.is_empty() {
@@ -1242,7 +1250,7 @@ mod tests {
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
-        SceneResult { scene: name.into(), status: "limit-point".into(), cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, wall_time_s: 0.0, fields: None }
+        SceneResult { scene: name.into(), status: crate::scene::SceneStatus::LimitPoint, cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, path: Default::default(), wall_time_s: 0.0, fields: None, states: Vec::new() }
     }
 
     #[test]

@@ -7,7 +7,7 @@
 use proptest::prelude::*;
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
-use twistopt::scene::{run_pressure, SceneKind, SceneOptions, SceneResult};
+use twistopt::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, SceneStatus};
 use twistopt_solver::material::{Material, NeoHookean};
 
 const R_MIN: f64 = 8.660254037844386;
@@ -24,8 +24,8 @@ fn geom(r: f64, l: f64, a: f64) -> ActuatorGeometry {
 /// The guarantees of every run: a known status with a cause when not completed, finite steps, at
 /// least the unloaded state, and pressures within the requested range.
 fn check(r: &SceneResult, targets: &[f64]) {
-    assert!(STATUSES.contains(&r.status.as_str()), "unknown status {}", r.status);
-    if r.status != "completed" {
+    assert!(STATUSES.contains(&r.status.name()), "unknown status {}", r.status);
+    if r.status != SceneStatus::Completed {
         assert!(!r.cause.is_empty(), "status {} without a cause", r.status);
     }
     assert!(!r.steps.is_empty());
@@ -46,7 +46,7 @@ fn thinnest_wall_full_twist_to_failure() {
         let t = [150.0];
         let r = run_pressure(&geom(R_MIN, 10.0, 360.0), &opts("12x4x1", 300.0), kind, &t).unwrap();
         check(&r, &t);
-        assert_ne!(r.status, "completed", "150 kPa is beyond what this wall survives");
+        assert_ne!(r.status, SceneStatus::Completed, "150 kPa is beyond what this wall survives");
     }
 }
 
@@ -66,7 +66,7 @@ fn vacuum_to_minus_90_kpa() {
         let r = run_pressure(&geom(R_MIN, 12.0, 150.0), &opts("12x4x1", 300.0), kind, &t).unwrap();
         check(&r, &t);
         // vacuum ends at −90 kPa, at a limit point (collapse) or where the walls would touch
-        assert!(["completed", "limit-point", "self-contact", "divergence", "inversion", "iteration-limit"].contains(&r.status.as_str()), "{}", r.status);
+        assert!(["completed", "limit-point", "self-contact", "divergence", "inversion", "iteration-limit"].contains(&r.status.name()), "{}", r.status);
     }
 }
 
@@ -77,7 +77,7 @@ fn bulk_modulus_from_1e2_to_1e5() {
     for k in [1e2, 1e3, 1e4, 1e5] {
         let r = run_pressure(&geom(R_MIN, 12.0, 150.0), &opts("12x4x1", k), SceneKind::Free, &t).unwrap();
         check(&r, &t);
-        assert_eq!(r.status, "completed", "κ/μ = {k}: {}", r.cause);
+        assert_eq!(r.status, SceneStatus::Completed, "κ/μ = {k}: {}", r.cause);
         thetas.push(r.steps.last().unwrap().theta_deg);
     }
     // converging towards incompressibility: successive changes shrink
@@ -96,7 +96,7 @@ fn very_small_and_very_large_requested_steps() {
         o.steps.max = max;
         let r = run_pressure(&g, &o, SceneKind::Blocked, &t).unwrap();
         check(&r, &t);
-        assert_eq!(r.status, "completed", "steps ({init}, {max}): {}", r.cause);
+        assert_eq!(r.status, SceneStatus::Completed, "steps ({init}, {max}): {}", r.cause);
         results.push(r.steps.last().unwrap().tau_nm);
     }
     // the same equilibrium whatever the path (hyperelastic)
@@ -110,7 +110,7 @@ fn coarsest_preset_to_the_limit_point() {
     check(&r, &t);
     // the pressure maximum ends the ramp (detected as a lost positive definiteness, or as Newton
     // failing at the smallest step just past it), unless the radius limit comes first
-    assert!(["limit-point", "divergence", "iteration-limit", "ballooning"].contains(&r.status.as_str()), "{}: {}", r.status, r.cause);
+    assert!(["limit-point", "divergence", "iteration-limit", "ballooning"].contains(&r.status.name()), "{}: {}", r.status, r.cause);
 }
 
 proptest! {

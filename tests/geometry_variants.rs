@@ -312,7 +312,7 @@ fn end_tangent_gradient_of_the_twist_matches_central_differences() {
         let g0 = ActuatorGeometry::new(&d0, RangePolicy::TableI).unwrap();
         let o = scene_opts(cap);
         let sg = scene_gradient(&g0, &o, SceneKind::Free, 10.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
-        assert_eq!(sg.status, "converged");
+        assert_eq!(sg.status, twistopt::scene::SceneStatus::Converged);
         let ad = sg.gradients["theta_deg"][P_END_TANGENT];
         let theta = |t: f64| {
             let g = ActuatorGeometry::new(&d0.with(P_END_TANGENT, gamma + t).unwrap(), RangePolicy::TableI).unwrap();

@@ -23,7 +23,7 @@ fn check_design(r: f64, l: f64, alpha: f64) {
     let o = opts();
     for kind in [SceneKind::Free, SceneKind::Blocked, SceneKind::PureTwist] {
         let sg = scene_gradient(&g, &o, kind, P_KPA, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
-        assert_eq!(sg.status, "converged", "{kind:?} at ({r}, {l}, {alpha}): {}", sg.cause);
+        assert_eq!(sg.status, twistopt::scene::SceneStatus::Converged, "{kind:?} at ({r}, {l}, {alpha}): {}", sg.cause);
         assert!(sg.ks_gap_mm >= 0.0 && sg.ks_gap_mm < 0.3, "KS gap {}", sg.ks_gap_mm);
         // every functional has a gradient w.r.t. r, l, α, p, μ
         for grad in sg.gradients.values() {

@@ -1,7 +1,7 @@
 //! Actuator scenes: symmetry reductions, determinism, and physical sanity checks.
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
-use twistopt::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+use twistopt::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, SceneStatus, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
 use twistopt_solver::material::NeoHookean;
 
 fn opts(preset: &str) -> SceneOptions {
@@ -13,7 +13,7 @@ fn example(alpha: f64) -> ActuatorGeometry {
 }
 
 fn last(r: &SceneResult) -> &twistopt::scene::StepRecord {
-    assert_eq!(r.status, "completed", "{}: {}", r.status, r.cause);
+    assert_eq!(r.status, SceneStatus::Completed, "{}: {}", r.status, r.cause);
     r.steps.last().unwrap()
 }
 
@@ -73,7 +73,7 @@ fn twist_changes_sign_with_alpha_and_pressure() {
     let o = opts("coarse");
     let pos = run_pressure(&example(60.0), &o, SceneKind::Free, &[-30.0, 30.0]).unwrap();
     let neg = run_pressure(&example(-60.0), &o, SceneKind::Free, &[30.0]).unwrap();
-    assert_eq!(pos.status, "completed", "{}", pos.cause);
+    assert_eq!(pos.status, SceneStatus::Completed, "{}", pos.cause);
     let at = |r: &SceneResult, p: f64| r.steps.iter().find(|s| (s.p_kpa - p).abs() < 1e-9).unwrap().theta_deg;
     let (tp, tn) = (at(&pos, 30.0), at(&pos, -30.0));
     assert!(tp.abs() > 1.0 && tn.abs() > 0.1);

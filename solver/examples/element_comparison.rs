@@ -13,7 +13,8 @@ use std::time::Instant;
 use twistopt_solver::element::{Formulation, PressureSpace};
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::model::Loads;
-use twistopt_solver::solve::{follow_volume, NewtonOptions, PathStatus, StepOptions};
+use twistopt_solver::continuation::{follow, Control, ContinuationOptions, LoadPath, PathEnd};
+use twistopt_solver::solve::NewtonOptions;
 use twistopt_solver::verify::{cook_membrane, inflation_slice, torsion_slice};
 
 fn shared(path: &str) -> serde_json::Value {
@@ -38,11 +39,11 @@ fn name(f: &Formulation) -> &'static str {
     }
 }
 
-fn status(s: &PathStatus) -> String {
+fn status(s: &PathEnd) -> String {
     match s {
-        PathStatus::Completed => "ok".into(),
-        PathStatus::Stopped(r) => format!("stopped: {r}"),
-        PathStatus::Failed(c) => format!("failed: {}", c.as_str()),
+        PathEnd::Completed => "ok".into(),
+        PathEnd::Failed(c) => format!("failed: {}", c.as_str()),
+        other => format!("{other:?}"),
     }
 }
 
@@ -89,7 +90,7 @@ fn main() {
         .unwrap()
         .clone();
     let (m_ref, n_ref) = (r3["M_Nmm"].as_f64().unwrap(), r3["N_N"].as_f64().unwrap());
-    let opts = StepOptions { initial: 1.0, max: 1.0, newton: NewtonOptions { indefinite: true, ..Default::default() }, ..Default::default() };
+    let opts = ContinuationOptions { initial: 1.0, max: 1.0, stop_at_instability: false, newton: NewtonOptions { indefinite: true, ..Default::default() }, ..Default::default() };
     for (f, meshes) in [(q2p1, vec![(12, 1), (24, 2), (48, 4)]), (q1p0, vec![(24, 2), (48, 4), (96, 8)]), (q2, vec![(24, 2)]), (q1, vec![(48, 4)])] {
         for (nt, nr) in meshes {
             let t = Instant::now();
@@ -136,21 +137,22 @@ fn main() {
                 }
             };
             let m = &s.model;
-            let loads = Loads::zero(m);
-            let (mut q, mut p) = (vec![0.0; m.n_reduced()], 0.0);
+            let mut to = Loads::zero(m);
+            to.pressure = 0.05;
+            let lp = LoadPath::new(m, Loads::zero(m), to, Vec::new());
+            let (mut q, mut lam) = (vec![0.0; m.n_reduced()], 0.0);
             let mut errs = Vec::new();
             let mut its = 0;
-            let mut last = PathStatus::Completed;
+            let mut last = PathEnd::Completed;
             for &(la, lz, p_ref) in &targets {
-                let res = follow_volume(m, &q, p, &loads, s.volume_of(la, lz), &StepOptions { initial: 0.25, max: 0.5, ..Default::default() }, |_| None);
-                its += res.newton_iterations;
-                last = res.status.clone();
-                if res.status != PathStatus::Completed {
-                    break;
-                }
-                errs.push(format!("{:+.4} %", 100.0 * (res.pressure / p_ref - 1.0)));
-                q = res.q;
-                p = res.pressure;
+                let o = ContinuationOptions { start_control: Control::Functional, control_end: Some(s.volume_of(la, lz)), stop_at_fold: false, stop_at_instability: false, ..Default::default() };
+                let res = follow(&lp, &q, lam, 10.0, &[], &[], &o);
+                its += res.stats.newton_iterations;
+                last = res.end.clone();
+                let Some(end) = res.points.last().filter(|_| res.end == PathEnd::Completed) else { break };
+                errs.push(format!("{:+.4} %", 100.0 * (lp.loads(end.lam).pressure / p_ref - 1.0)));
+                q = end.q.clone();
+                lam = end.lam;
             }
             errs.resize(2, "–".into());
             println!("| {} | {nt}×{nr}×1 | {} | {} | {} | {its} | {:.2} | {} |", name(&f), m.n_reduced(), errs[0], errs[1], t.elapsed().as_secs_f64(), status(&last));

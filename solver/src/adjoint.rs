@@ -69,6 +69,19 @@ pub struct State<D> {
     pub bodies: Vec<BodyState<D>>,
 }
 
+impl State<f64> {
+    /// The state of an assembly (same values as [`evaluate`] at its inputs, without re-evaluating
+    /// the elements): what the path follower reads its recorded outputs from.
+    pub fn from_assembly(model: &Model, a: &crate::model::Assembled) -> State<f64> {
+        let bodies = a
+            .kin
+            .iter()
+            .map(|k| BodyState { c: k.c, psi: k.psi, r: k.r, dr: k.dr })
+            .collect();
+        State { x0: model.mesh.nodes.clone(), u: a.u.clone(), r_full: a.r_full.clone(), r: a.r.clone(), volume: a.volume, gvol_full: Vec::new(), bodies }
+    }
+}
+
 /// Inputs of an evaluation: reference coordinates, reduced unknowns, pressure, prescribed values
 /// and material parameters, each possibly dual.
 pub struct Inputs<'a, D> {
@@ -264,6 +277,9 @@ pub enum Functional {
     /// each listed node from the z axis: a smooth upper bound of max ρ_n, above it by at most
     /// ln(N)/ρ (ρ in 1/length).
     KsRadius { nodes: Vec<usize>, rho: f64 },
+    /// The largest current distance from the z axis over the listed nodes (not smooth: its
+    /// derivative is that of the farthest node; for recording, the optimiser uses `KsRadius`).
+    MaxRadius { nodes: Vec<usize> },
 }
 
 impl Functional {
@@ -297,6 +313,10 @@ impl Functional {
                 let m = radii.iter().map(|v| v.re()).fold(f64::NEG_INFINITY, f64::max);
                 let s: D = radii.iter().map(|&v| ((v - m) * *rho).exp()).sum();
                 Ok(s.ln() / *rho + m)
+            }
+            Functional::MaxRadius { nodes } => {
+                let best = nodes.iter().map(|&n| radius(st, n)).max_by(|a, b| a.re().total_cmp(&b.re()));
+                best.ok_or_else(|| AdjointError::Input("max radius needs nodes".into()))
             }
         }
     }
@@ -407,6 +427,17 @@ fn partial_q(model: &Model, q: &[f64], loads: &Loads, st: &State<f64>, f: &Funct
                     g[3 * nd] += wn / s * x / rn;
                     g[3 * nd + 1] += wn / s * y / rn;
                 }
+            }
+            Ok(reduce(model, q, loads, &g))
+        }
+        Functional::MaxRadius { nodes } => {
+            let Some((&nd, rn)) = nodes.iter().map(|n| (n, radius(st, *n))).max_by(|a, b| a.1.total_cmp(&b.1)) else {
+                return Err(AdjointError::Input("max radius needs nodes".into()));
+            };
+            let mut g = vec![0.0; 3 * model.mesh.nodes.len()];
+            if rn > 0.0 {
+                g[3 * nd] = (st.x0[nd][0] + st.u[nd][0]) / rn;
+                g[3 * nd + 1] = (st.x0[nd][1] + st.u[nd][1]) / rn;
             }
             Ok(reduce(model, q, loads, &g))
         }
@@ -721,9 +752,12 @@ mod tests {
         l.pressure = 0.02;
         let (q, _) = solve(m, &vec![0.0; m.n_reduced()], &l);
         let v = m.assemble(&q, &l, false).unwrap().volume;
-        let r = crate::solve::follow_volume(m, &vec![0.0; m.n_reduced()], 0.0, &Loads::zero(m), v, &crate::solve::StepOptions::default(), |_| None);
-        assert_eq!(r.status, crate::solve::PathStatus::Completed);
-        assert!((r.pressure - 0.02).abs() < 1e-7, "pressure {} vs 0.02", r.pressure);
+        let mut to = Loads::zero(m);
+        to.pressure = 0.05;
+        let o = crate::continuation::ContinuationOptions { start_control: crate::continuation::Control::Functional, control_end: Some(v), ..Default::default() };
+        let r = crate::continuation::ramp(m, &vec![0.0; m.n_reduced()], &Loads::zero(m), &to, &o);
+        assert_eq!(r.end, crate::continuation::PathEnd::Completed);
+        assert!((r.loads.pressure - 0.02).abs() < 1e-7, "pressure {} vs 0.02", r.loads.pressure);
         // the open tube (no end force) shortens where the closed one lengthens
         let a = m.assemble(&q, &l, false).unwrap();
         let (_, lz_open) = s.stretches(&a);

@@ -181,6 +181,32 @@ fn project<D: Scalar, M: Hyperelastic>(
     Ok((theta, pt, minv))
 }
 
+/// The projection of a dilatation field given at the quadrature points, Θ = Π_h v, and the
+/// pressure p̃ = Π_h U'(Θ), with the element's M⁻¹ (empty = no projection). A non-positive Θ is
+/// clamped (the tangent of a state that far off equilibrium is only a search direction).
+fn project_field<M: Hyperelastic>(ps: PressureSpace, mat: &M, params: &[f64], qp: &[QpData<f64>], v: &[f64], minv: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let np = ps.dim();
+    if np == 0 {
+        let th: Vec<f64> = v.iter().map(|t| t.max(1e-3)).collect();
+        let pt = th.iter().map(|t| mat.u_vol(params, *t)[1]).collect();
+        return (th, pt);
+    }
+    let proj = |vals: &[f64]| -> Vec<f64> {
+        let mut b = vec![0.0; np];
+        for (d, x) in qp.iter().zip(vals) {
+            for r in 0..np {
+                b[r] += x * d.wj0 * d.q[r];
+            }
+        }
+        let a: Vec<f64> = (0..np).map(|r| (0..np).map(|s| minv[r * np + s] * b[s]).sum()).collect();
+        qp.iter().map(|d| (0..np).map(|r| a[r] * d.q[r]).sum()).collect()
+    };
+    let th: Vec<f64> = proj(v).into_iter().map(|t| t.max(1e-3)).collect();
+    let up: Vec<f64> = th.iter().map(|t| mat.u_vol(params, *t)[1]).collect();
+    let pt = proj(&up);
+    (th, pt)
+}
+
 fn gather<D: Scalar>(
     form: &Formulation,
     rule: &HexRule,
@@ -249,10 +275,69 @@ pub fn tangent<M: Hyperelastic>(
     f_out: &mut [f64],
     k_out: &mut [f64],
 ) -> Result<ElementInfo<f64>, ElementError> {
+    tangent_mixed(form, rule, mat, params, x0, u, None, f_out, k_out)
+}
+
+/// As [`tangent`], with the volumetric part of the tangent taken at the *linearised* dilatation
+/// of a previous state `u_lin` (the mixed three-field Newton): the dilatation state is
+/// Θ = Π_h[J(u_lin) + J(u_lin) F(u_lin)⁻ᵀ : (F(u) − F(u_lin))], the pressure state
+/// p̃ = Π_h U'(Θ), and the tangent is the exact Hessian with p̃, U''(Θ) in place of their values at
+/// Π_h J(u). The residual `f_out` is unchanged (the exact energy gradient). This is the condensed
+/// tangent of the three-field (u, p, Θ) Hu–Washizu Newton whose local fields are updated by their
+/// linearisation instead of re-projected: away from equilibrium it avoids the spurious pressure
+/// κ·O(|Δu|²) that a displacement-only tangent sees after a large step, and at equilibrium
+/// (u = u_lin) it is the exact tangent.
+#[allow(clippy::too_many_arguments)]
+pub fn tangent_mixed<M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[f64],
+    x0: &[[f64; 3]],
+    u: &[[f64; 3]],
+    u_lin: Option<&[[f64; 3]]>,
+    f_out: &mut [f64],
+    k_out: &mut [f64],
+) -> Result<ElementInfo<f64>, ElementError> {
     let nn = x0.len();
     let nd = 3 * nn;
     let qp = gather(form, rule, x0, u)?;
     let (theta, pt, minv) = project(form.pressure, mat, params, &qp)?;
+    // the volumetric state of the tangent: from the exact projection, or linearised about u_lin
+    let (theta_k, pt_k) = match u_lin {
+        None => (theta.clone(), pt.clone()),
+        Some(ul) => {
+            let jlin: Vec<f64> = qp
+                .iter()
+                .map(|d| {
+                    let mut fl = [[0.0f64; 3]; 3];
+                    for (i, row) in fl.iter_mut().enumerate() {
+                        row[i] = 1.0;
+                    }
+                    for a in 0..nn {
+                        for i in 0..3 {
+                            for cap in 0..3 {
+                                fl[i][cap] += ul[a][i] * d.g[a][cap];
+                            }
+                        }
+                    }
+                    let jl = det3(&fl);
+                    if !(jl > 0.0) {
+                        return d.j; // no usable linearisation point: the exact dilatation
+                    }
+                    let fli = inv3(&fl, jl);
+                    let mut tr = 0.0;
+                    for i in 0..3 {
+                        for cap in 0..3 {
+                            tr += fli[cap][i] * (d.f[i][cap] - fl[i][cap]);
+                        }
+                    }
+                    jl * (1.0 + tr)
+                })
+                .collect();
+            project_field(form.pressure, mat, params, &qp, &jlin, &minv)
+        }
+    };
     f_out.iter_mut().for_each(|v| *v = 0.0);
     k_out.iter_mut().for_each(|v| *v = 0.0);
     let np = form.pressure.dim();
@@ -270,7 +355,8 @@ pub fn tangent<M: Hyperelastic>(
         let jm23 = d.j.powf(-2.0 / 3.0);
         let i1b = jm23 * i1;
         let [w, w1, w2] = mat.w_iso(params, i1b);
-        let [uv, _, upp] = mat.u_vol(params, theta[gi]);
+        let uv = mat.u_vol(params, theta[gi])[0];
+        let upp = mat.u_vol(params, theta_k[gi])[2];
         energy += (w + uv) * d.wj0;
         // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
         let mut gb = [[0.0; 3]; 3];
@@ -296,6 +382,7 @@ pub fn tangent<M: Hyperelastic>(
         }
         let wj0 = d.wj0;
         let pj = pt[gi] * d.j;
+        let pj_k = pt_k[gi] * d.j;
         for b in 0..nn {
             let gbv = d.g[b];
             for i in 0..3 {
@@ -316,7 +403,7 @@ pub fn tangent<M: Hyperelastic>(
             for cj in 0..3 {
                 for k in 0..3 {
                     for cl in 0..3 {
-                        let mut v = pj * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
+                        let mut v = pj_k * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
                         if np == 0 {
                             v += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
                         }

@@ -7,11 +7,11 @@ use crate::material::{Hyperelastic, Material};
 use crate::mesh::{Face, Mesh};
 use crate::shape::HexRule;
 use crate::surface::{self, Cavity};
-use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
+use faer::sparse::linalg::solvers::{Lu, SymbolicLu};
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, CholeskySymbolicParams, IntranodeLbltRef, SymbolicCholesky, SymmetricOrdering};
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, CholeskySymbolicParams, IntranodeLbltRef, LltRef, SymbolicCholesky, SymmetricOrdering};
 use faer::{Conj, Par};
 use std::sync::Arc;
 use faer::{Mat, Side};
@@ -133,9 +133,11 @@ pub struct Model {
     pub dofs: DofMap,
     pub cavity: Option<Cavity>,
     pattern: Pattern,
-    symbolic: SymbolicLlt<u32>,
+    /// symbolic analysis of the tangent (fill-reducing ordering, elimination tree, supernodes),
+    /// shared by the Cholesky and the LBLᵀ factorisations
+    symbolic: Arc<SymbolicCholesky<u32>>,
+    ordering: Ordering,
     symbolic_lu: std::sync::OnceLock<Option<(SymbolicSparseColMat<u32>, Vec<usize>, SymbolicLu<u32>)>>,
-    symbolic_lblt: std::sync::OnceLock<Option<Arc<SymbolicCholesky<u32>>>>,
     /// Elements per parallel work unit (fixed: results do not depend on the thread count).
     pub chunk: usize,
     /// Per-element scatter tables (built on first use when they fit in memory).
@@ -163,14 +165,8 @@ impl Model {
         let dofs = DofMap::build(&mesh.nodes, constraints)?;
         let cavity = cavity_faces.map(|f| Cavity::new(&mesh, f));
         let pattern = build_pattern(&mesh, &dofs);
-        let sym = SymbolicSparseColMat::<u32>::new_checked(
-            pattern.n,
-            pattern.n,
-            pattern.col_ptr.clone(),
-            None,
-            pattern.row_idx.clone(),
-        );
-        let symbolic = SymbolicLlt::try_new(sym.as_ref(), Side::Upper).map_err(|e| ModelError::Symbolic(format!("{e:?}")))?;
+        let ordering = Ordering::default();
+        let symbolic = symbolic_analysis(&pattern, ordering)?;
         let rule = form.rule();
         let params = material.params();
         Ok(Model {
@@ -183,11 +179,27 @@ impl Model {
             cavity,
             pattern,
             symbolic,
+            ordering,
             symbolic_lu: std::sync::OnceLock::new(),
-            symbolic_lblt: std::sync::OnceLock::new(),
             chunk: 32,
             scatter_cache: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Redo the symbolic analysis with another fill-reducing ordering.
+    pub fn set_ordering(&mut self, ordering: Ordering) -> Result<(), ModelError> {
+        self.symbolic = symbolic_analysis(&self.pattern, ordering)?;
+        self.ordering = ordering;
+        Ok(())
+    }
+
+    pub fn ordering(&self) -> Ordering {
+        self.ordering
+    }
+
+    /// Entries of the Cholesky factor L (the fill of the ordering).
+    pub fn factor_nnz(&self) -> usize {
+        self.symbolic.len_val()
     }
 
     pub fn n_reduced(&self) -> usize {
@@ -200,9 +212,20 @@ impl Model {
 
     /// Assemble residual (and tangent) at reduced state q under loads.
     pub fn assemble(&self, q: &[f64], loads: &Loads, want_k: bool) -> Result<Assembled, ElementError> {
+        self.assemble_lin(q, loads, want_k, None)
+    }
+
+    /// As [`Model::assemble`], with the tangent's volumetric state linearised about the state
+    /// `q_lin` (the previous Newton iterate or the converged state a predictor started from; see
+    /// [`element::tangent_mixed`]). The residual is the same; the tangent is exact when q = q_lin.
+    pub fn assemble_lin(&self, q: &[f64], loads: &Loads, want_k: bool, q_lin: Option<&[f64]>) -> Result<Assembled, ElementError> {
         let x0 = &self.mesh.nodes;
         let kin = self.dofs.body_kinematics(q, &loads.presc);
         let u = self.dofs.expand(x0, q, &loads.presc, &kin);
+        let u_lin = q_lin.filter(|_| want_k).map(|ql| {
+            let kl = self.dofs.body_kinematics(ql, &loads.presc);
+            self.dofs.expand(x0, ql, &loads.presc, &kl)
+        });
         let nn = self.mesh.kind.nodes_per_element();
         let nd = 3 * nn;
         let ne = self.mesh.n_elements();
@@ -227,7 +250,8 @@ impl Model {
                         let mut f = vec![0.0; nd];
                         let info = if want_k {
                             let mut k = vec![0.0; nd * nd];
-                            let info = element::tangent(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, &mut f, &mut k)
+                            let ul: Option<Vec<[f64; 3]>> = u_lin.as_ref().map(|ul| conn.iter().map(|&n| ul[n]).collect());
+                            let info = element::tangent_mixed(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, ul.as_deref(), &mut f, &mut k)
                                 .map_err(|e| relabel(e, el))?;
                             out.push((info.energy, info.min_det_f, f, k));
                             continue;
@@ -507,11 +531,17 @@ impl Model {
         SparseColMat::new(sym, values)
     }
 
-    /// Cholesky factorisation with the stored symbolic analysis. Fails if not positive definite.
+    /// Cholesky factorisation with the stored symbolic analysis (sequential: on the tangents of
+    /// this project faer's parallel supernodal factorisation is slower on 2 cores, and sweeps run
+    /// one design per core). Fails if not positive definite.
     pub fn factor(&self, values: &[f64]) -> Result<Factor, SolveError> {
         let a = self.matrix(values.to_vec());
-        match Llt::try_new_with_symbolic(self.symbolic.clone(), a.as_ref(), Side::Upper) {
-            Ok(l) => Ok(Factor::Llt(l)),
+        let sym = self.symbolic.clone();
+        let mut lv = vec![0.0; sym.len_val()];
+        let par = Par::Seq;
+        let mut mem = MemBuffer::new(sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()));
+        match sym.factorize_numeric_llt(&mut lv, a.as_ref(), Side::Upper, Default::default(), par, MemStack::new(&mut mem), Default::default()) {
+            Ok(_) => Ok(Factor::Llt(Box::new(LltOwned { sym, values: lv }))),
             Err(_) => Err(SolveError::NotPositiveDefinite),
         }
     }
@@ -528,22 +558,7 @@ impl Model {
     }
 
     fn factor_lblt(&self, values: &[f64]) -> Option<Factor> {
-        let sym = self
-            .symbolic_lblt
-            .get_or_init(|| {
-                let a = SymbolicSparseColMat::<u32>::new_checked(
-                    self.pattern.n,
-                    self.pattern.n,
-                    self.pattern.col_ptr.clone(),
-                    None,
-                    self.pattern.row_idx.clone(),
-                );
-                factorize_symbolic_cholesky(a.as_ref(), Side::Upper, SymmetricOrdering::Amd, CholeskySymbolicParams::default())
-                    .ok()
-                    .map(Arc::new)
-            })
-            .as_ref()?
-            .clone();
+        let sym = self.symbolic.clone();
         let n = self.pattern.n;
         let a = self.matrix(values.to_vec());
         let mut lv = vec![0.0; sym.len_val()];
@@ -625,9 +640,15 @@ impl Model {
 
 /// A factorised tangent.
 pub enum Factor {
-    Llt(Llt<u32, f64>),
+    Llt(Box<LltOwned>),
     Lu(Lu<u32, f64>),
     Lblt(Box<Lblt>),
+}
+
+/// A Cholesky factorisation (owned storage of faer's supernodal LLᵀ factor).
+pub struct LltOwned {
+    sym: Arc<SymbolicCholesky<u32>>,
+    values: Vec<f64>,
 }
 
 /// An LBLᵀ factorisation (owned storage of faer's intranodal Bunch–Kaufman factor).
@@ -643,7 +664,11 @@ impl Factor {
     pub fn solve(&self, b: &[f64]) -> Result<Vec<f64>, SolveError> {
         let mut m = Mat::<f64>::from_fn(b.len(), 1, |i, _| b[i]);
         match self {
-            Factor::Llt(l) => l.solve_in_place(m.as_mut()),
+            Factor::Llt(f) => {
+                let l = LltRef::new(&f.sym, &f.values);
+                let mut mem = MemBuffer::new(f.sym.solve_in_place_scratch::<f64>(1, Par::Seq));
+                l.solve_in_place_with_conj(Conj::No, m.as_mut(), Par::Seq, MemStack::new(&mut mem));
+            }
             Factor::Lu(l) => l.solve_in_place(m.as_mut()),
             Factor::Lblt(f) => {
                 let n = f.sym.nrows();
@@ -660,6 +685,145 @@ impl Factor {
             Err(SolveError::NonFinite)
         }
     }
+}
+
+impl Factor {
+    /// Whether this is a Cholesky factor (the tangent was positive definite).
+    pub fn is_definite(&self) -> bool {
+        matches!(self, Factor::Llt(_))
+    }
+}
+
+/// Fill-reducing ordering of the tangent's symbolic analysis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Ordering {
+    /// faer's approximate minimum degree
+    Amd,
+    /// METIS nested dissection (METIS_NodeND on the graph of the tangent)
+    NestedDissection,
+}
+
+impl Default for Ordering {
+    /// Nested dissection where METIS is built in (measured faster; see the `ordering` benchmark),
+    /// else AMD.
+    fn default() -> Self {
+        if cfg!(feature = "metis") {
+            Ordering::NestedDissection
+        } else {
+            Ordering::Amd
+        }
+    }
+}
+
+fn symbolic_analysis(pattern: &Pattern, ordering: Ordering) -> Result<Arc<SymbolicCholesky<u32>>, ModelError> {
+    let sym = SymbolicSparseColMat::<u32>::new_checked(pattern.n, pattern.n, pattern.col_ptr.clone(), None, pattern.row_idx.clone());
+    let err = |e: faer::sparse::FaerError| ModelError::Symbolic(format!("{e:?}"));
+    let res = match ordering {
+        Ordering::Amd => factorize_symbolic_cholesky(sym.as_ref(), Side::Upper, SymmetricOrdering::Amd, CholeskySymbolicParams::default()),
+        Ordering::NestedDissection => {
+            let (fwd, inv) = nested_dissection(pattern).ok_or_else(|| ModelError::Symbolic("nested dissection ordering failed".into()))?;
+            let perm = faer::perm::PermRef::new_checked(&fwd, &inv, pattern.n);
+            factorize_symbolic_cholesky(sym.as_ref(), Side::Upper, SymmetricOrdering::Custom(perm), CholeskySymbolicParams::default())
+        }
+    };
+    res.map(Arc::new).map_err(err)
+}
+
+/// METIS nested-dissection permutation (fwd, inv) of the tangent's graph.
+#[cfg(feature = "metis")]
+fn nested_dissection(pattern: &Pattern) -> Option<(Vec<u32>, Vec<u32>)> {
+    let n = pattern.n;
+    if n <= 1 {
+        return Some(((0..n as u32).collect(), (0..n as u32).collect()));
+    }
+    // symmetric adjacency without the diagonal
+    let mut adj: Vec<Vec<i32>> = vec![Vec::new(); n];
+    for c in 0..n {
+        for s in pattern.col_ptr[c] as usize..pattern.col_ptr[c + 1] as usize {
+            let r = pattern.row_idx[s] as usize;
+            if r != c {
+                adj[r].push(c as i32);
+                adj[c].push(r as i32);
+            }
+        }
+    }
+    for a in adj.iter_mut() {
+        a.sort_unstable();
+        a.dedup();
+    }
+    // dense rows (e.g. a rigid body's DOFs, coupled to all its nodes) go last: they would
+    // otherwise join every separator
+    let mut degs: Vec<usize> = adj.iter().map(|a| a.len()).collect();
+    degs.sort_unstable();
+    let median = degs[n / 2].max(1);
+    let dense: Vec<bool> = adj.iter().map(|a| a.len() > 10 * median && a.len() > 200).collect();
+    let keep: Vec<usize> = (0..n).filter(|&i| !dense[i]).collect();
+    let mut local = vec![usize::MAX; n];
+    for (k, &i) in keep.iter().enumerate() {
+        local[i] = k;
+    }
+    // group the DOFs that share their adjacency (the components of a node) into one vertex
+    let mut group_of = vec![usize::MAX; keep.len()];
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    {
+        let mut seen: std::collections::HashMap<Vec<i32>, usize> = std::collections::HashMap::new();
+        for (k, &i) in keep.iter().enumerate() {
+            let mut key: Vec<i32> = adj[i].iter().copied().filter(|&j| !dense[j as usize]).collect();
+            key.push(i as i32);
+            key.sort_unstable();
+            let g = *seen.entry(key).or_insert_with(|| {
+                groups.push(Vec::new());
+                groups.len() - 1
+            });
+            groups[g].push(i);
+            group_of[k] = g;
+        }
+    }
+    let ng = groups.len();
+    let mut xadj = Vec::with_capacity(ng + 1);
+    let mut adjncy = Vec::new();
+    xadj.push(0i32);
+    for g in &groups {
+        let mut nb: Vec<i32> = adj[g[0]].iter().filter(|&&j| !dense[j as usize]).map(|&j| group_of[local[j as usize]] as i32).collect();
+        nb.sort_unstable();
+        nb.dedup();
+        let me = group_of[local[g[0]]] as i32;
+        nb.retain(|&x| x != me);
+        adjncy.extend_from_slice(&nb);
+        xadj.push(adjncy.len() as i32);
+    }
+    let mut vwgt: Vec<i32> = groups.iter().map(|g| g.len() as i32).collect();
+    let mut nv = ng as i32;
+    let mut perm = vec![0i32; ng];
+    let mut iperm = vec![0i32; ng];
+    let mut options = [0i32; metis_sys::METIS_NOPTIONS as usize];
+    // SAFETY: METIS_SetDefaultOptions fills the options array it is given; METIS_NodeND reads the
+    // CSR graph (n + 1 offsets, adjncy.len() neighbours) and writes n entries to perm and iperm,
+    // all of which are allocated above with those sizes.
+    let ok = unsafe {
+        metis_sys::METIS_SetDefaultOptions(options.as_mut_ptr());
+        metis_sys::METIS_NodeND(&mut nv, xadj.as_mut_ptr(), adjncy.as_mut_ptr(), vwgt.as_mut_ptr(), options.as_mut_ptr(), perm.as_mut_ptr(), iperm.as_mut_ptr())
+    };
+    if ok != metis_sys::rstatus_et_METIS_OK {
+        return None;
+    }
+    // METIS: perm[new] = old group; expand the groups, then the dense DOFs; faer: fwd[new] = old
+    let mut fwd: Vec<u32> = Vec::with_capacity(n);
+    for &g in &perm {
+        fwd.extend(groups[g as usize].iter().map(|&i| i as u32));
+    }
+    fwd.extend((0..n).filter(|&i| dense[i]).map(|i| i as u32));
+    let mut inv = vec![0u32; n];
+    for (new, &old) in fwd.iter().enumerate() {
+        inv[old as usize] = new as u32;
+    }
+    Some((fwd, inv))
+}
+
+#[cfg(not(feature = "metis"))]
+fn nested_dissection(_pattern: &Pattern) -> Option<(Vec<u32>, Vec<u32>)> {
+    None
 }
 
 /// Cached scatter: the coefficients come from the current rows (same order as the pattern).

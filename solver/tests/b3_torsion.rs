@@ -5,7 +5,8 @@ mod common;
 use twistopt_solver::element::Formulation;
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::model::Loads;
-use twistopt_solver::solve::{follow_path, newton, NewtonOptions, PathStatus, StepOptions};
+use twistopt_solver::continuation::{ramp, ContinuationOptions, PathEnd};
+use twistopt_solver::solve::{newton, NewtonOptions};
 use twistopt_solver::verify::{torsion_slice, TorsionSlice};
 
 const L: f64 = 40.0;
@@ -34,9 +35,9 @@ fn b3_hollow_tube_fixed_length_up_to_90_degrees() {
     // the benchmark's hoop-compression wrinkling warning anticipates. The exact solution is that
     // axisymmetric branch; Newton with LU solves from the symmetric state follows it, and the radii
     // are checked to stay uniform around the tube below.
-    let opts = StepOptions { initial: 1.0, max: 1.0, newton: NewtonOptions { indefinite: true, ..Default::default() }, ..Default::default() };
+    let opts = axisymmetric();
     let (pts, status, _) = s.twist(L, &angles, &opts);
-    assert_eq!(status, PathStatus::Completed);
+    assert_eq!(status, PathEnd::Completed);
     for (p, r) in pts.iter().zip(&rows) {
         let (m_ref, n_ref) = (r["M_Nmm"].as_f64().unwrap(), r["N_N"].as_f64().unwrap());
         let (a_ref, b_ref) = (r["a_mm"].as_f64().unwrap(), r["b_mm"].as_f64().unwrap());
@@ -58,8 +59,8 @@ fn b6_linear_torsional_stiffness_at_one_degree() {
     let k_exact = b6["torsional_stiffness_Nmm2"]["exact_linear_annulus"].as_f64().unwrap();
     assert!((k_exact - 40845.2).abs() < 0.1);
     let s = slice();
-    let (pts, status, _) = s.twist(L, &[1.0], &StepOptions { initial: 1.0, ..Default::default() });
-    assert_eq!(status, PathStatus::Completed);
+    let (pts, status, _) = s.twist(L, &[1.0], &ContinuationOptions { initial: 1.0, ..Default::default() });
+    assert_eq!(status, PathEnd::Completed);
     let t_lin = k_exact * 1f64.to_radians() / L;
     let e = (pts[0].m - t_lin) / t_lin;
     println!("B6: T = {:.5} N·mm at 1° over 40 mm, exact linear {t_lin:.5} ({:+.4} %)", pts[0].m, 100.0 * e);
@@ -75,8 +76,8 @@ fn newton_converges_quadratically_on_the_tube() {
     let from = Loads::zero(m);
     let mut to = from.clone();
     to.presc[s.twist_slot] = 10f64.to_radians() / L * s.h;
-    let res = follow_path(m, &vec![0.0; m.n_reduced()], &from, &to, &StepOptions { initial: 1.0, ..Default::default() }, |_| None);
-    assert_eq!(res.status, PathStatus::Completed);
+    let res = ramp(m, &vec![0.0; m.n_reduced()], &from, &to, &ContinuationOptions { initial: 1.0, ..Default::default() });
+    assert_eq!(res.end, PathEnd::Completed);
     let mut loads = to.clone();
     loads.presc[s.twist_slot] = 12f64.to_radians() / L * s.h;
     let mut q = res.q.clone();
@@ -114,9 +115,8 @@ fn b3_hollow_tube_free_length() {
         .collect();
     let kind = ElementKind::Hex27;
     let s = torsion_slice(kind, Formulation::standard(kind), 24, 2, 2.0, 1000.0, true).unwrap();
-    let opts = StepOptions { initial: 1.0, max: 1.0, newton: NewtonOptions { indefinite: true, ..Default::default() }, ..Default::default() };
-    let (pts, status, _) = s.twist(L, &[30.0, 60.0, 90.0], &opts);
-    assert_eq!(status, PathStatus::Completed);
+    let (pts, status, _) = s.twist(L, &[30.0, 60.0, 90.0], &axisymmetric());
+    assert_eq!(status, PathEnd::Completed);
     for (p, r) in pts.iter().zip(&rows) {
         let (lz, m) = (r["lz"].as_f64().unwrap(), r["M_Nmm"].as_f64().unwrap());
         println!("{}°: λ_z {:.6} (ref {lz:.6}), M {:.3} (ref {m:.3}), N {:.2e}", p.angle_deg, p.lz, p.m, p.n);
@@ -124,4 +124,10 @@ fn b3_hollow_tube_free_length() {
         assert!(((p.m - m) / m).abs() < 0.005, "M at {}°", p.angle_deg);
         assert!(p.n.abs() < 1e-6 * m / 17.0, "N at {}°: {}", p.angle_deg, p.n);
     }
+}
+
+/// Path options that follow the axisymmetric branch past its loss of stability (the exact
+/// solution): indefinite factorisations accepted, no stop at the instability.
+fn axisymmetric() -> ContinuationOptions {
+    ContinuationOptions { initial: 1.0, max: 1.0, stop_at_instability: false, newton: NewtonOptions { indefinite: true, ..Default::default() }, ..Default::default() }
 }

@@ -2,7 +2,7 @@
 mod common;
 use twistopt_solver::element::{Formulation, PressureSpace};
 use twistopt_solver::mesh::ElementKind;
-use twistopt_solver::solve::PathStatus;
+use twistopt_solver::continuation::PathEnd;
 use twistopt_solver::verify::cook_membrane;
 
 #[test]
@@ -15,7 +15,7 @@ fn b5_cook_membrane_mixed_elements_converge_and_q1_locks() {
 
     // Q2/P1 (Hex27), 16 × 16: within 0.5 %
     let q2 = cook_membrane(Formulation::standard(ElementKind::Hex27), 16, 5000.0, traction).unwrap();
-    assert_eq!(q2.status, PathStatus::Completed);
+    assert_eq!(q2.status, PathEnd::Completed);
     let e2 = (q2.uy - uy_ref) / uy_ref;
     assert!(e2.abs() < 0.005, "Q2/P1 16x16: u_y = {} ({:+.3} %)", q2.uy, 100.0 * e2);
     // the reference's own Q2/P1 16 × 16 value (literature set, identical up to scaling)
@@ -26,14 +26,14 @@ fn b5_cook_membrane_mixed_elements_converge_and_q1_locks() {
 
     // Q1/P0 (Hex8 mean dilatation), 32 × 32: within 1.5 %
     let q1 = cook_membrane(Formulation::standard(ElementKind::Hex8), 32, 5000.0, traction).unwrap();
-    assert_eq!(q1.status, PathStatus::Completed);
+    assert_eq!(q1.status, PathEnd::Completed);
     let e1 = (q1.uy - uy_ref) / uy_ref;
     assert!(e1.abs() < 0.015, "Q1/P0 32x32: u_y = {} ({:+.3} %)", q1.uy, 100.0 * e1);
 
     // pure-displacement Q1 locks: u_y < 5.5 mm (the locking indicator)
     let d = Formulation { kind: ElementKind::Hex8, pressure: PressureSpace::None, ngauss: 2 };
     let q1d = cook_membrane(d, 32, 5000.0, traction).unwrap();
-    assert_eq!(q1d.status, PathStatus::Completed);
+    assert_eq!(q1d.status, PathEnd::Completed);
     assert!(q1d.uy < 5.5 && q1d.uy > 0.0, "pure-displacement Q1 32x32: u_y = {} (should lock)", q1d.uy);
     println!("B5 u_y: Q2/P1 16x16 {:.5} ({:+.3} %), Q1/P0 32x32 {:.5} ({:+.3} %), Q1 32x32 {:.5}", q2.uy, 100.0 * e2, q1.uy, 100.0 * e1, q1d.uy);
 }

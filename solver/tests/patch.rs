@@ -6,7 +6,7 @@ use twistopt_solver::material::NeoHookean;
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::meshgen;
 use twistopt_solver::model::{Loads, Model};
-use twistopt_solver::solve::{follow_path, PathStatus, StepOptions};
+use twistopt_solver::continuation::{ramp, ContinuationOptions, PathEnd};
 
 #[test]
 fn homogeneous_deformation_is_reproduced_on_a_distorted_mesh() {
@@ -40,9 +40,9 @@ fn homogeneous_deformation_is_reproduced_on_a_distorted_mesh() {
         let model = Model::new(mesh, form, mat.into(), &cons, None).unwrap();
         let mut to = Loads::zero(&model);
         to.presc = model.dofs.presc_targets.clone();
-        let opts = StepOptions { max: 0.1, ..StepOptions::default() };
-        let res = follow_path(&model, &vec![0.0; model.n_reduced()], &Loads::zero(&model), &to, &opts, |_| None);
-        assert_eq!(res.status, PathStatus::Completed, "{form:?}");
+        let opts = ContinuationOptions { max: 0.1, ..ContinuationOptions::default() };
+        let res = ramp(&model, &vec![0.0; model.n_reduced()], &Loads::zero(&model), &to, &opts);
+        assert_eq!(res.end, PathEnd::Completed, "{form:?}");
         let a = model.assemble(&res.q, &res.loads, false).unwrap();
         let mut worst: f64 = 0.0;
         for (n, x) in model.mesh.nodes.iter().enumerate() {

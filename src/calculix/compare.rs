@@ -91,17 +91,7 @@ pub fn check_scene(
     let targets = v.load.targets();
     let mut tw = match run_pressure(&v.geometry, &opts, scene, &targets) {
         Ok(r) => r,
-        Err(e) => SceneResult {
-            scene: scene.name().into(),
-            status: "model-error".into(),
-            cause: e.to_string().replace('\n', " "),
-            steps: vec![],
-            dofs: 0,
-            elements: 0,
-            newton_iterations: 0,
-            wall_time_s: 0.0,
-            fields: None,
-        },
+        Err(e) => SceneResult::model_error(scene, e.to_string().replace('\n', " ")),
     };
     select_steps(&mut tw, &v.load);
     let deck = build_deck(&v.geometry, &v.mesh, &v.material, scene, &targets, deck_opts)?;

@@ -1,0 +1,1185 @@
+//! Path following: one continuation method for every load path, written once against a model
+//! interface ([`PathModel`]) that the full sparse model ([`LoadPath`]) and a reduced-order model
+//! both implement.
+//!
+//! A path is the equilibrium set r(q, λ) = 0 of a model under loads that depend on one parameter
+//! λ ∈ [λ₀, λ_end] (e.g. a cavity pressure ramp). The method:
+//!
+//! * **Predictor.** At a converged point the tangent t = dq/dλ = −K⁻¹ ∂r/∂λ costs one solve with
+//!   the factor already computed. The first step predicts along t; once two points exist, a
+//!   Hermite extrapolation through the previous point (value) and the current one (value and
+//!   tangent) is used, whose error is O(h³) instead of O(h²).
+//! * **Step length** from the prediction error of the last step, e = ‖q − q_pred‖/‖q_pred − q_k‖
+//!   (∝ h for the tangent line, ∝ h² for the extrapolation; target `target_error`), capped by the
+//!   Newton iteration count. (A prediction error estimated before the solve, from the chord
+//!   correction with the current factor, was tried and overestimates the true error 100–300×
+//!   here: the residual of a prediction is dominated by the volumetric term κ·O(|Δq|²).)
+//! * **Corrector.** Newton with the mixed (three-field) tangent linearised about the previous
+//!   iterate ([`crate::model::Model::assemble_lin`]), an energy-slope line search whose trial
+//!   points need only residuals, and the stopping test of [`NewtonOptions`].
+//! * **Control switch.** Where the model has a control functional c(q) (the cavity volume), the
+//!   path switches from λ to c as its parameter before a fold of λ: when the stiffness dλ/dc has
+//!   fallen below `switch_stiffness` of its initial value, or when the next λ step would reach
+//!   half-way to the fold predicted from the stiffness trend. Under c control (bordered Newton: λ
+//!   is an unknown) the fold is a regular point, so it is passed and located instead of probed
+//!   by failing load steps.
+//! * **Events located on the path by root finding**: the fold (λ maximum, dλ/dc = 0; secant on
+//!   the stiffness, to `locate_tol` relative in λ), loss of stability with λ still rising (a
+//!   bifurcation; secant on the tangent's smallest eigenvalue, bisection as a fallback), output
+//!   thresholds ([`Stop`], e.g. a ballooning limit on a radius; Illinois regula falsi), stations
+//!   (λ values the path must produce a point at) and the end λ_end.
+//!
+//! Every Newton iteration is counted, those of failed attempts too ([`PathStats`]).
+
+use crate::adjoint::{self, Functional};
+use crate::element::ElementError;
+use crate::model::{Assembled, Factor, Loads, Model, SolveError};
+use crate::solve::{NewtonFailure, NewtonOptions, FailureCause};
+
+/// What a model evaluates at a state (q, λ).
+#[derive(Clone, Debug)]
+pub struct Eval<K> {
+    /// The residual r(q, λ) in the model's unknowns.
+    pub r: Vec<f64>,
+    /// The force scale for relative convergence tests (size of the terms summed into r).
+    pub scale: f64,
+    /// The control functional c(q) and its gradient ∂c/∂q (e.g. the cavity volume); None = the
+    /// model has none (the path stays under λ control).
+    pub control: Option<(f64, Vec<f64>)>,
+    /// Smallest det F (or equivalent) of the state, for reports.
+    pub min_det: f64,
+    /// The tangent ∂r/∂q, when requested.
+    pub k: Option<K>,
+}
+
+/// Why a model could not be evaluated at a state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EvalFailure {
+    /// An element inverted (det F ≤ 0).
+    Inversion,
+    /// A non-finite value.
+    NonFinite,
+}
+
+/// The model interface of the path follower: residual and tangent, factorisation and solves, the
+/// load rate and the outputs. Nothing here needs the full nodal fields.
+pub trait PathModel {
+    type Matrix;
+    type Factor;
+    /// Number of unknowns.
+    fn dim(&self) -> usize;
+    /// Residual (and, with `tangent`, the tangent) at (q, λ). `lin` is the state the tangent's
+    /// internal fields are linearised about (None = the exact tangent at q).
+    fn eval(&self, q: &[f64], lam: f64, tangent: bool, lin: Option<&[f64]>) -> Result<Eval<Self::Matrix>, EvalFailure>;
+    /// Factor the tangent: Cholesky when `definite` (an error if not positive definite), else a
+    /// factorisation of a symmetric indefinite matrix.
+    fn factor(&self, k: &Self::Matrix, definite: bool) -> Result<Self::Factor, SolveError>;
+    fn solve(&self, f: &Self::Factor, b: &[f64]) -> Result<Vec<f64>, SolveError>;
+    /// ∂r/∂λ at fixed q (`ev` is the evaluation at (q, λ)).
+    fn load_rate(&self, q: &[f64], lam: f64, ev: &Eval<Self::Matrix>) -> Result<Vec<f64>, EvalFailure>;
+    /// The outputs recorded at a converged point.
+    fn outputs(&self, q: &[f64], lam: f64, ev: &Eval<Self::Matrix>) -> Vec<f64>;
+}
+
+/// How the path is parametrised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Control {
+    /// λ is prescribed (load control).
+    Load,
+    /// The control functional c(q) is prescribed and λ is an unknown (volume control).
+    Functional,
+}
+
+/// An output threshold that ends the path where it is first crossed: output `output` reaching
+/// `threshold` from below (`rising`) or from above.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stop {
+    pub name: String,
+    pub output: usize,
+    pub threshold: f64,
+    pub rising: bool,
+}
+
+/// Path-following options.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ContinuationOptions {
+    /// First step, as a fraction of λ_end − λ₀.
+    pub initial: f64,
+    /// Smallest step (fraction of λ_end − λ₀) before a failure is accepted.
+    pub min: f64,
+    /// Largest step (fraction of λ_end − λ₀).
+    pub max: f64,
+    /// Step length target: the prediction error e = ‖q − q_predicted‖/‖q_predicted − q_previous‖
+    /// of a converged step (e ∝ h for the tangent line, ∝ h² for the quadratic extrapolation).
+    pub target_error: f64,
+    /// Steps that needed more Newton iterations than this are not grown.
+    pub target_iterations: usize,
+    pub max_steps: usize,
+    /// Switch to control-functional control when dλ/dc falls below this fraction of its first
+    /// value (None = never switch; the fold is then found by loss of stability).
+    pub switch_stiffness: Option<f64>,
+    /// Relative accuracy in λ of located events (fold, stability loss, thresholds).
+    pub locate_tol: f64,
+    /// End the path at a fold of λ (else pass it under control-functional control).
+    pub stop_at_fold: bool,
+    /// End the path where a converged point loses stability with λ still rising.
+    pub stop_at_instability: bool,
+    /// Start under this control (`Functional` for paths beyond a fold).
+    pub start_control: Control,
+    /// With `Functional` control: end where the control functional reaches this value.
+    pub control_end: Option<f64>,
+    /// Use the mixed (linearised-dilatation) tangent in Newton iterations.
+    pub mixed_tangent: bool,
+    /// Predict by the cubic Hermite extrapolation through the last two points (values and
+    /// tangents; error O(h⁴)) instead of the quadratic (value, tangent, previous value; O(h³)).
+    pub cubic: bool,
+    pub newton: NewtonOptions,
+}
+
+impl Default for ContinuationOptions {
+    fn default() -> Self {
+        ContinuationOptions {
+            initial: 0.02,
+            min: 1e-5,
+            max: 0.25,
+            target_error: 0.01,
+            target_iterations: 4,
+            max_steps: 500,
+            switch_stiffness: Some(0.35),
+            locate_tol: 1e-6,
+            stop_at_fold: true,
+            stop_at_instability: true,
+            start_control: Control::Load,
+            control_end: None,
+            mixed_tangent: true,
+            cubic: true,
+            newton: NewtonOptions::default(),
+        }
+    }
+}
+
+/// Why a path point was recorded.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PointKind {
+    Start,
+    Step,
+    /// One of the requested stations (its index).
+    Station(usize),
+    /// Where the path ended (fold, instability, threshold, end).
+    End,
+}
+
+/// A converged point of the path.
+#[derive(Clone, Debug)]
+pub struct PathPoint {
+    pub lam: f64,
+    pub q: Vec<f64>,
+    /// control functional value
+    pub control: Option<f64>,
+    pub outputs: Vec<f64>,
+    pub min_det: f64,
+    /// the tangent is positive definite
+    pub stable: bool,
+    pub kind: PointKind,
+    /// Newton iterations spent on this point (including failed attempts before it)
+    pub newton_iterations: usize,
+}
+
+/// How a path ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PathEnd {
+    /// λ_end (or `control_end`) reached.
+    Completed,
+    /// A fold of λ (its maximum along the path), located to `locate_tol`.
+    Fold,
+    /// The tangent lost positive definiteness with λ still rising (a bifurcation), located to
+    /// `locate_tol`: the last point is the last stable state.
+    Instability,
+    /// An output threshold was reached ([`Stop`] by index).
+    Stopped(usize),
+    /// The path could not be continued.
+    Failed(FailureCause),
+}
+
+/// Work counts of a path.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PathStats {
+    /// converged continuation steps (points other than the start)
+    pub steps: usize,
+    /// Newton iterations (tangent factorisations of iterates), all attempts
+    pub newton_iterations: usize,
+    /// of which in attempts that failed
+    pub failed_iterations: usize,
+    pub failed_attempts: usize,
+    /// tangent factorisations in all
+    pub factorizations: usize,
+    /// Newton iterations spent locating events (included in `newton_iterations`)
+    pub locate_iterations: usize,
+}
+
+impl PathStats {
+    pub fn add(&mut self, o: &PathStats) {
+        self.steps += o.steps;
+        self.newton_iterations += o.newton_iterations;
+        self.failed_iterations += o.failed_iterations;
+        self.failed_attempts += o.failed_attempts;
+        self.factorizations += o.factorizations;
+        self.locate_iterations += o.locate_iterations;
+    }
+}
+
+/// The result of a path.
+pub struct PathResult<M: PathModel> {
+    pub points: Vec<PathPoint>,
+    pub end: PathEnd,
+    pub stats: PathStats,
+    /// The tangent and its factor at the last point (for adjoint and limit sensitivities), when
+    /// it could be factored.
+    pub last: Option<(M::Matrix, M::Factor)>,
+    /// the control in use at the end
+    pub control: Control,
+}
+
+/// A converged state with its tangent factor, its path tangent and stiffness.
+struct Node<M: PathModel> {
+    lam: f64,
+    q: Vec<f64>,
+    ev: Eval<M::Matrix>,
+    factor: M::Factor,
+    stable: bool,
+    /// dq/dλ
+    t: Vec<f64>,
+    /// c and dc/dλ
+    c: Option<f64>,
+    dc: Option<f64>,
+    out: Vec<f64>,
+}
+
+impl<M: PathModel> Node<M> {
+    /// dλ/dc
+    fn stiffness(&self) -> Option<f64> {
+        self.dc.map(|d| 1.0 / d)
+    }
+    fn param(&self, ctl: Control) -> f64 {
+        match ctl {
+            Control::Load => self.lam,
+            Control::Functional => self.c.unwrap_or(f64::NAN),
+        }
+    }
+    /// d(q, λ)/d(parameter)
+    fn rates(&self, ctl: Control) -> (Vec<f64>, f64) {
+        match (ctl, self.dc) {
+            (Control::Functional, Some(dc)) => (self.t.iter().map(|v| v / dc).collect(), 1.0 / dc),
+            _ => (self.t.clone(), 1.0),
+        }
+    }
+}
+
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// The outcome of a corrector solve.
+pub struct Solved<M: PathModel> {
+    pub q: Vec<f64>,
+    pub lam: f64,
+    pub ev: Eval<M::Matrix>,
+    pub factor: M::Factor,
+    /// the converged tangent is positive definite
+    pub stable: bool,
+    pub iterations: usize,
+    /// ‖r‖ of every iterate, with `NewtonOptions::log`
+    pub residual_norms: Vec<f64>,
+}
+
+/// Newton's method at fixed λ (load control, `c_target` None) or with the control functional
+/// held at `c_target` (λ an unknown; the bordered system K Δq + r_λ Δλ = −r, ∇cᵀ Δq = c_target −
+/// c solved with one factorisation and two solves). `lin0` is the state the first tangent is
+/// linearised about (the converged point a prediction came from). Under load control an energy
+/// line search (trial points need residuals only) globalises the step. A converged state whose
+/// tangent is not positive definite is returned with `stable = false` and an indefinite factor.
+/// On failure the iterations spent are returned with the cause.
+#[allow(clippy::too_many_arguments)]
+pub fn correct<M: PathModel>(
+    m: &M,
+    q0: &[f64],
+    lam0: f64,
+    c_target: Option<f64>,
+    opts: &NewtonOptions,
+    mixed: bool,
+    lin0: Option<&[f64]>,
+) -> Result<Solved<M>, (NewtonFailure, usize)> {
+    let trace = trace_enabled();
+    let mut q = q0.to_vec();
+    let mut lam = lam0;
+    let mut lin: Option<Vec<f64>> = lin0.filter(|_| mixed).map(|v| v.to_vec());
+    let mut its = 0usize;
+    let mut indefinite_seen = false;
+    let fail = |f: NewtonFailure, its: usize, indefinite_seen: bool| {
+        // a solve that met indefinite tangents and then failed to converge is the signature of a
+        // load beyond a limit point (no nearby stable equilibrium)
+        let f = match f {
+            NewtonFailure::Divergence | NewtonFailure::IterationLimit if indefinite_seen && c_target.is_none() && !opts.indefinite => NewtonFailure::NotPositiveDefinite,
+            other => other,
+        };
+        Err((f, its))
+    };
+    let mut ev = match m.eval(&q, lam, true, lin.as_deref()) {
+        Ok(e) => e,
+        Err(e) => return fail(eval_fail(e), 0, false),
+    };
+    let mut last_norm = f64::INFINITY;
+    let mut growth = 0;
+    let mut e0 = 0.0;
+    let mut r0 = f64::INFINITY;
+    let mut log = Vec::new();
+    let ctol = c_target.map(|c| 1e-10 * c.abs().max(ev.control.as_ref().map_or(0.0, |x| x.0.abs())).max(1e-300));
+    for it in 0..=opts.max_iter {
+        let rn = norm(&ev.r);
+        let dc = match (c_target, &ev.control) {
+            (Some(ct), Some((c, _))) => ct - c,
+            (Some(_), None) => return fail(NewtonFailure::Divergence, its, indefinite_seen),
+            _ => 0.0,
+        };
+        if !rn.is_finite() || !dc.is_finite() {
+            return fail(NewtonFailure::Divergence, its, indefinite_seen);
+        }
+        if opts.log {
+            log.push(rn);
+        }
+        let scale = ev.scale;
+        let tol = (opts.rtol * scale).max(opts.atol);
+        let floor = (opts.stagnation_rtol * scale).max(opts.atol);
+        let at_floor = it > 0 && rn <= floor && rn > 0.5 * last_norm;
+        let c_ok = ctol.map_or(true, |t| dc.abs() <= t);
+        if (rn <= tol || at_floor) && c_ok {
+            let k = ev.k.as_ref().expect("tangent requested");
+            return match definite_factor(m, k) {
+                Some((factor, stable)) => Ok(Solved { q, lam, ev, factor, stable, iterations: its, residual_norms: log }),
+                None => fail(NewtonFailure::Divergence, its, indefinite_seen),
+            };
+        }
+        if it == opts.max_iter {
+            break;
+        }
+        if rn > last_norm * 1e3 {
+            growth += 1;
+            if growth >= 2 {
+                return fail(NewtonFailure::Divergence, its, indefinite_seen);
+            }
+        }
+        if it == 0 {
+            r0 = rn;
+        }
+        // fail fast: a solve that is not converging hands back to the step control early
+        if (it >= opts.stall_iterations && rn > r0) || (it >= 2 * opts.stall_iterations && rn > 1e-6 * r0) {
+            return fail(NewtonFailure::Divergence, its, indefinite_seen);
+        }
+        last_norm = rn;
+        its += 1;
+        let k = ev.k.take().expect("tangent requested");
+        let factor = match m.factor(&k, c_target.is_none() && !opts.indefinite) {
+            Ok(f) => f,
+            Err(SolveError::NotPositiveDefinite) => {
+                indefinite_seen = true;
+                match m.factor(&k, false) {
+                    Ok(f) => f,
+                    Err(_) => return fail(NewtonFailure::NotPositiveDefinite, its, indefinite_seen),
+                }
+            }
+            Err(_) => return fail(NewtonFailure::Divergence, its, indefinite_seen),
+        };
+        let neg: Vec<f64> = ev.r.iter().map(|v| -v).collect();
+        let Ok(a) = m.solve(&factor, &neg) else { return fail(NewtonFailure::Divergence, its, indefinite_seen) };
+        // the step (Δq, Δλ)
+        let (dq, dlam) = match (c_target, &ev.control) {
+            (Some(_), Some((_, g))) => {
+                let rl = match m.load_rate(&q, lam, &ev) {
+                    Ok(v) => v,
+                    Err(e) => return fail(eval_fail(e), its, indefinite_seen),
+                };
+                let Ok(b) = m.solve(&factor, &rl) else { return fail(NewtonFailure::Divergence, its, indefinite_seen) };
+                // Δq = a − Δλ b with ∇cᵀΔq = dc
+                let dl = (dot(g, &a) - dc) / dot(g, &b);
+                if !dl.is_finite() {
+                    return fail(NewtonFailure::Divergence, its, indefinite_seen);
+                }
+                (a.iter().zip(&b).map(|(x, y)| x - dl * y).collect::<Vec<f64>>(), dl)
+            }
+            _ => (a, 0.0),
+        };
+        let g0 = dot(&dq, &ev.r);
+        {
+            if it == 0 {
+                e0 = g0.abs();
+            } else if g0.abs() <= opts.etol * e0 && rn <= floor && c_ok {
+                // energy criterion: the remaining correction carries no energy
+                ev.k = Some(k);
+                // (this iterate's factorisation is the converged state's: not a correction)
+                return match definite_factor(m, ev.k.as_ref().expect("kept")) {
+                    Some((f, s)) => Ok(Solved { q, lam, ev, factor: f, stable: s, iterations: its - 1, residual_norms: log }),
+                    None => fail(NewtonFailure::Divergence, its, indefinite_seen),
+                };
+            }
+        }
+        // line search: residual-only trials on the energy slope g(s) = Δq·r(q + sΔq) under load
+        // control; step cutting on inversion only under functional control
+        let mut s = 1.0;
+        let mut accepted: Option<(Vec<f64>, f64)> = None;
+        for _ls in 0..8 {
+            let qt: Vec<f64> = q.iter().zip(&dq).map(|(x, d)| x + s * d).collect();
+            let lt = lam + s * dlam;
+            match m.eval(&qt, lt, false, None) {
+                Err(_) => {
+                    s *= 0.25;
+                    continue;
+                }
+                Ok(et) => {
+                    if c_target.is_some() || !opts.line_search || opts.indefinite {
+                        accepted = Some((qt, lt));
+                        break;
+                    }
+                    let gs = dot(&dq, &et.r);
+                    if !gs.is_finite() {
+                        s *= 0.25;
+                        continue;
+                    }
+                    if gs.abs() <= 0.8 * g0.abs() || s < 0.05 || g0 >= 0.0 {
+                        accepted = Some((qt, lt));
+                        break;
+                    }
+                    // secant step towards the zero of g along the direction
+                    let snew = if gs > 0.0 { s * g0 / (g0 - gs) } else { s * 2.0 };
+                    let snew = snew.clamp(0.1 * s, 1.0);
+                    if (snew - s).abs() < 1e-3 {
+                        accepted = Some((qt, lt));
+                        break;
+                    }
+                    s = snew;
+                }
+            }
+        }
+        if trace {
+            eprintln!("[newton] it {it} |r| {rn:.3e} scale {scale:.3e} dc {dc:.3e} g0 {g0:.3e} s {s:.3} λ {lam:.7}");
+        }
+        let Some((qt, lt)) = accepted else { return fail(NewtonFailure::Inversion, its, indefinite_seen) };
+        let prev = std::mem::replace(&mut q, qt);
+        lam = lt;
+        if mixed {
+            lin = Some(prev);
+        }
+        ev = match m.eval(&q, lam, true, lin.as_deref()) {
+            Ok(e) => e,
+            Err(e) => return fail(eval_fail(e), its, indefinite_seen),
+        };
+    }
+    fail(NewtonFailure::IterationLimit, its, indefinite_seen)
+}
+
+/// Factor a converged tangent: (factor, positive definite).
+fn definite_factor<M: PathModel>(m: &M, k: &M::Matrix) -> Option<(M::Factor, bool)> {
+    match m.factor(k, true) {
+        Ok(f) => Some((f, true)),
+        Err(SolveError::NotPositiveDefinite) => m.factor(k, false).ok().map(|f| (f, false)),
+        Err(_) => None,
+    }
+}
+
+fn eval_fail(e: EvalFailure) -> NewtonFailure {
+    match e {
+        EvalFailure::Inversion => NewtonFailure::Inversion,
+        EvalFailure::NonFinite => NewtonFailure::Divergence,
+    }
+}
+
+fn cause_of(f: NewtonFailure) -> FailureCause {
+    match f {
+        NewtonFailure::NotPositiveDefinite => FailureCause::LimitPoint,
+        NewtonFailure::Inversion => FailureCause::Inversion,
+        NewtonFailure::Divergence => FailureCause::Divergence,
+        NewtonFailure::IterationLimit => FailureCause::IterationLimit,
+    }
+}
+
+/// `TWISTOPT_TRACE=1` prints every step and Newton iteration to stderr.
+pub fn trace_enabled() -> bool {
+    static TRACE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *TRACE.get_or_init(|| std::env::var_os("TWISTOPT_TRACE").is_some())
+}
+
+/// Follow the path of `m` from the state `q0` at λ₀ = `lam0` towards `lam_end`, producing a point
+/// at each of `stations` (λ values between λ₀ and λ_end) and ending at the first of: λ_end (or
+/// `control_end`), a fold, a loss of stability, a [`Stop`] threshold, or a failure.
+pub fn follow<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions) -> PathResult<M> {
+    let mut f = Follower { m, o, stats: PathStats::default(), trace: trace_enabled(), stops, points: Vec::new() };
+    let (end, last, ctl) = f.run(q0, lam0, lam_end, stations);
+    let last = last.and_then(|n| n.ev.k.map(|k| (k, n.factor)));
+    PathResult { points: f.points, end, stats: f.stats, last, control: ctl }
+}
+
+/// The path follower's working state.
+struct Follower<'a, M: PathModel> {
+    m: &'a M,
+    o: &'a ContinuationOptions,
+    stats: PathStats,
+    trace: bool,
+    stops: &'a [Stop],
+    points: Vec<PathPoint>,
+}
+
+/// What happened between two consecutive nodes.
+enum Event<M: PathModel> {
+    Stop(usize, Node<M>),
+    Fold(Node<M>),
+    Instability(Node<M>),
+}
+
+impl<'a, M: PathModel> Follower<'a, M> {
+    fn newton(&mut self, q0: &[f64], lam: f64, c_target: Option<f64>, lin: Option<&[f64]>, locate: bool) -> Result<Node<M>, NewtonFailure> {
+        let res = correct(self.m, q0, lam, c_target, &self.o.newton, self.o.mixed_tangent, lin);
+        match res {
+            Ok(s) => {
+                self.stats.newton_iterations += s.iterations;
+                if locate {
+                    self.stats.locate_iterations += s.iterations;
+                }
+                self.node(s)
+            }
+            Err((e, its)) => {
+                self.stats.newton_iterations += its;
+                self.stats.failed_iterations += its;
+                self.stats.failed_attempts += 1;
+                if locate {
+                    self.stats.locate_iterations += its;
+                }
+                if self.trace {
+                    eprintln!("[path] solve at λ {lam:.7} c {c_target:?} failed: {e:?} after {its} its");
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// A converged node from a corrector solve (its tangent dq/dλ, stiffness and outputs).
+    fn node(&mut self, s: Solved<M>) -> Result<Node<M>, NewtonFailure> {
+        self.stats.factorizations += 1;
+        let rl = self.m.load_rate(&s.q, s.lam, &s.ev).map_err(eval_fail)?;
+        let t: Vec<f64> = self.m.solve(&s.factor, &rl).map_err(|_| NewtonFailure::Divergence)?.into_iter().map(|v| -v).collect();
+        let (c, dc) = match &s.ev.control {
+            Some((c, g)) => (Some(*c), Some(dot(g, &t))),
+            None => (None, None),
+        };
+        let out = self.m.outputs(&s.q, s.lam, &s.ev);
+        Ok(Node { lam: s.lam, q: s.q, ev: s.ev, factor: s.factor, stable: s.stable, t, c, dc, out })
+    }
+
+    fn push(&mut self, n: &Node<M>, kind: PointKind, its: usize) {
+        self.points.push(PathPoint { lam: n.lam, q: n.q.clone(), control: n.c, outputs: n.out.clone(), min_det: n.ev.min_det, stable: n.stable, kind, newton_iterations: its });
+    }
+
+    /// Solve for the point at parameter value `s` (λ or c per `ctl`) between nodes a and b,
+    /// predicted by their Hermite cubic.
+    fn solve_between(&mut self, a: &Node<M>, b: &Node<M>, ctl: Control, s: f64) -> Result<Node<M>, NewtonFailure> {
+        let (qp, lp) = hermite(a, b, ctl, s);
+        match ctl {
+            Control::Load => self.newton(&qp, s, None, Some(&a.q), true),
+            Control::Functional => self.newton(&qp, lp, Some(s), Some(&a.q), true),
+        }
+    }
+
+    fn run(&mut self, q0: &[f64], lam0: f64, lam_end: f64, stations: &[f64]) -> (PathEnd, Option<Node<M>>, Control) {
+        let o = self.o;
+        let span = lam_end - lam0;
+        let dir = if span >= 0.0 { 1.0 } else { -1.0 };
+        let mut ctl = o.start_control;
+        if !(lam0.is_finite() && lam_end.is_finite()) || o.control_end.is_some_and(|c| !c.is_finite()) {
+            return (PathEnd::Failed(FailureCause::Divergence), None, ctl);
+        }
+        // the start: accepted as it is when its Newton correction is round-off against the
+        // path's response K⁻¹ r_λ (λ_end − λ₀) (e.g. the unloaded state), else solved
+        let accepted = self.m.eval(q0, lam0, true, None).ok().and_then(|ev| {
+            if span == 0.0 {
+                return None;
+            }
+            let rl = self.m.load_rate(q0, lam0, &ev).ok()?;
+            let (factor, stable) = definite_factor(self.m, ev.k.as_ref()?)?;
+            let d = self.m.solve(&factor, &ev.r).ok()?;
+            let t = self.m.solve(&factor, &rl).ok()?;
+            if !(norm(&d) <= 1e-9 * norm(&t) * span.abs()) {
+                return None;
+            }
+            self.stats.factorizations += 1;
+            Some(Solved { q: q0.to_vec(), lam: lam0, ev, factor, stable, iterations: 0, residual_norms: Vec::new() })
+        });
+        let start = match accepted {
+            Some(s) => self.node(s),
+            None => self.newton(q0, lam0, None, None, false),
+        };
+        let mut cur = match start {
+            Ok(n) => n,
+            Err(e) => return (PathEnd::Failed(cause_of(e)), None, ctl),
+        };
+        let its0 = self.stats.newton_iterations;
+        self.push(&cur, PointKind::Start, its0);
+        if span == 0.0 {
+            return (PathEnd::Completed, Some(cur), ctl);
+        }
+        if cur.dc.is_none() {
+            ctl = Control::Load;
+        }
+        if ctl == Control::Functional && o.start_control == Control::Functional {
+            // a functional-controlled start keeps λ's direction as the direction of c
+        }
+        let k0 = cur.stiffness();
+        // the sign of dc/dλ on the initial branch, and the direction c moves along the path
+        let cdir = cur.dc.map(|d| d.signum()).unwrap_or(1.0);
+        let mut prev: Option<Node<M>> = None;
+        let mut st: Vec<(usize, f64)> = stations.iter().copied().enumerate().filter(|(_, s)| (s - lam0) * dir > 0.0 && (lam_end - s) * dir >= 0.0).collect();
+        st.sort_by(|a, b| ((a.1 - lam0) * dir).total_cmp(&((b.1 - lam0) * dir)));
+        let mut next_station = 0usize;
+        // step length: λ units under load control, c units under functional control
+        let mut h = o.initial * span.abs();
+        if ctl == Control::Functional {
+            h *= cur.dc.map(|d| d.abs()).unwrap_or(1.0);
+        }
+        let mut pending_its = 0usize;
+        loop {
+            if self.stats.steps >= o.max_steps {
+                return (PathEnd::Failed(FailureCause::StepLimit), Some(cur), ctl);
+            }
+            let (hmin, hmax) = match ctl {
+                Control::Load => (o.min * span.abs(), o.max * span.abs()),
+                Control::Functional => {
+                    let c = cur.c.unwrap_or(1.0).abs().max(1e-300);
+                    (1e-9 * c, 0.5 * c)
+                }
+            };
+            // control switch before a fold
+            if ctl == Control::Load && o.switch_stiffness.is_some() && cur.dc.is_some() {
+                let ratio = match (cur.stiffness(), k0) {
+                    (Some(k), Some(k0)) if k0 != 0.0 => k / k0,
+                    _ => 1.0,
+                };
+                let mut switch = ratio < o.switch_stiffness.unwrap_or(0.0);
+                // a fold predicted from the stiffness trend (linear in c): switch when the next
+                // step would go more than half-way to it
+                if let (Some(p), Some(kc), Some(cc)) = (&prev, cur.stiffness(), cur.c) {
+                    if let (Some(kp), Some(cp)) = (p.stiffness(), p.c) {
+                        let slope = (kc - kp) / (cc - cp);
+                        if slope.is_finite() && slope * kc * cdir < 0.0 {
+                            let c_fold = cc - kc / slope;
+                            let lam_fold = cur.lam + 0.5 * kc * (c_fold - cc);
+                            if (lam_fold - cur.lam) * dir > 0.0 && h > 0.5 * (lam_fold - cur.lam).abs() {
+                                switch = true;
+                            }
+                        }
+                    }
+                }
+                if switch {
+                    ctl = Control::Functional;
+                    h *= cur.dc.map(|d| d.abs()).unwrap_or(1.0);
+                    if self.trace {
+                        eprintln!("[path] functional control from λ {:.7} (stiffness ratio {ratio:.3})", cur.lam);
+                    }
+                    continue;
+                }
+            }
+            let sdir = match (ctl, o.control_end, cur.c) {
+                (Control::Load, _, _) => dir,
+                (Control::Functional, Some(ce), Some(c)) => (ce - c).signum(),
+                (Control::Functional, _, _) => cdir * dir,
+            };
+            h = h.clamp(hmin, hmax);
+            let p_cur = cur.param(ctl);
+            let mut target = p_cur + sdir * h;
+            let mut landing: Option<PointKind> = None;
+            match ctl {
+                Control::Load => {
+                    let next_lam = st.get(next_station).map(|s| s.1).unwrap_or(lam_end);
+                    if (target - next_lam) * dir >= -1e-12 * span.abs() {
+                        target = next_lam;
+                        landing = Some(st.get(next_station).map_or(PointKind::End, |s| PointKind::Station(s.0)));
+                    }
+                }
+                Control::Functional => {
+                    if let Some(ce) = o.control_end {
+                        if (target - ce) * sdir >= 0.0 {
+                            target = ce;
+                            landing = Some(PointKind::End);
+                        }
+                    }
+                }
+            }
+            let hs = (target - p_cur).abs();
+            // prediction: the tangent line, then the quadratic through the previous point
+            let (q_start, l_start) = match prev.as_ref().filter(|_| o.cubic) {
+                // an unstable state under load control (a path deliberately followed past its
+                // stability limit): its tangent may be nearly singular, so no extrapolation
+                _ if ctl == Control::Load && !cur.stable => (cur.q.clone(), target),
+                Some(p) if (p.stable || ctl == Control::Functional) && (p.param(ctl) - cur.param(ctl)).abs() > 0.0 && p.param(ctl).is_finite() => hermite(p, &cur, ctl, target),
+                _ => extrapolate(&cur, prev.as_ref(), ctl, target),
+            };
+            let dqn = norm(&q_start.iter().zip(&cur.q).map(|(a, b)| a - b).collect::<Vec<f64>>()).max(1e-300);
+            let its_before = self.stats.newton_iterations;
+            let res = match ctl {
+                Control::Load => self.newton(&q_start, target, None, Some(&cur.q), false),
+                Control::Functional => self.newton(&q_start, l_start, Some(target), Some(&cur.q), false),
+            };
+            let its = self.stats.newton_iterations - its_before;
+            let new = match res {
+                Err(fail) => {
+                    pending_its += its;
+                    if self.trace {
+                        eprintln!("[path] step to {target:.7} failed ({fail:?}, {its} its)");
+                    }
+                    if hs <= hmin * (1.0 + 1e-9) {
+                        // under load control next to a fold: pass it under functional control
+                        if ctl == Control::Load && cur.dc.is_some() && o.switch_stiffness.is_some() {
+                            ctl = Control::Functional;
+                            h = hs * cur.dc.map(|d| d.abs()).unwrap_or(1.0);
+                            continue;
+                        }
+                        return (PathEnd::Failed(cause_of(fail)), Some(cur), ctl);
+                    }
+                    h = (hs * 0.25).max(hmin);
+                    continue;
+                }
+                Ok(n) => n,
+            };
+            self.stats.steps += 1;
+            let its_point = its + std::mem::take(&mut pending_its);
+            // the prediction error relative to the step
+            let e = norm(&new.q.iter().zip(&q_start).map(|(a, b)| a - b).collect::<Vec<f64>>()) / dqn;
+            if self.trace {
+                eprintln!("[path] {ctl:?} step to {target:.7}: λ {:.7} c {:?}, {its} its, prediction error {e:.3e}, stable {}, dλ/dc {:?}", new.lam, new.c, new.stable, new.stiffness());
+            }
+            // events between cur and new, in path order
+            match self.event(&cur, new, ctl, cdir, dir) {
+                Ok(new) => {
+                    // stations passed under functional control
+                    if ctl == Control::Functional {
+                        self.emit_stations(&cur, &new, &st, &mut next_station, dir);
+                        if (new.lam - lam_end) * dir >= 0.0 {
+                            let n = match self.solve_between(&cur, &new, Control::Load, lam_end) {
+                                Ok(n) => n,
+                                Err(_) => new,
+                            };
+                            self.push(&n, PointKind::End, its_point);
+                            return (PathEnd::Completed, Some(n), ctl);
+                        }
+                    }
+                    let kind = landing.clone().unwrap_or(PointKind::Step);
+                    self.push(&new, kind.clone(), its_point);
+                    if let PointKind::Station(_) = kind {
+                        next_station += 1;
+                    }
+                    if kind == PointKind::End {
+                        return (PathEnd::Completed, Some(new), ctl);
+                    }
+                    // next step length from the prediction error (extrapolation: e ∝ h²; the
+                    // first, tangent-line step: e ∝ h) and the iteration count
+                    let order = match (prev.is_some(), o.cubic) { (false, _) => 1.0, (true, false) => 2.0, (true, true) => 3.0 };
+                    // (no prediction, e.g. from an unstable state: the iteration count decides)
+                    let predicted = dqn > 1e-200;
+                    let mut fct = if predicted { (o.target_error / e.max(1e-12)).powf(1.0 / order).clamp(0.5, 2.0) } else if its <= o.target_iterations { 1.5 } else { 1.0 };
+                    if its > o.target_iterations {
+                        fct = fct.min(0.7);
+                    }
+                    let hbase = if landing.is_some() { h.max(hs) } else { hs };
+                    h = hbase * fct;
+                    prev = Some(std::mem::replace(&mut cur, new));
+                }
+                Err(ev) => {
+                    let (end, n) = match ev {
+                        Event::Stop(i, n) => (PathEnd::Stopped(i), n),
+                        Event::Fold(n) => (PathEnd::Fold, n),
+                        Event::Instability(n) => (PathEnd::Instability, n),
+                    };
+                    self.emit_stations(&cur, &n, &st, &mut next_station, dir);
+                    self.push(&n, PointKind::End, its_point);
+                    return (end, Some(n), ctl);
+                }
+            }
+        }
+    }
+
+    /// Check the segment cur → new for events; Ok(new) when none, else the located end node.
+    fn event(&mut self, cur: &Node<M>, new: Node<M>, ctl: Control, cdir: f64, dir: f64) -> Result<Node<M>, Event<M>> {
+        let o = self.o;
+        let folded = o.stop_at_fold
+            && (matches!((cur.stiffness(), new.stiffness()), (Some(a), Some(b)) if a * cdir > 0.0 && b * cdir <= 0.0)
+                || (ctl == Control::Functional && (new.lam - cur.lam) * dir < 0.0));
+        let unstable = !folded && o.stop_at_instability && cur.stable && !new.stable;
+        // the far end of the segment that matters: the fold or the stability limit, else new
+        let far = if folded {
+            self.locate_fold(cur, new)
+        } else if unstable {
+            match self.locate_instability(cur, &new, ctl) {
+                Some(n) => n,
+                None => return Err(Event::Instability(new)),
+            }
+        } else {
+            new
+        };
+        // thresholds crossed before `far`
+        for (i, s) in self.stops.iter().enumerate() {
+            let sg = if s.rising { 1.0 } else { -1.0 };
+            let (a, b) = (sg * (cur.out[s.output] - s.threshold), sg * (far.out[s.output] - s.threshold));
+            if a < 0.0 && b >= 0.0 {
+                let n = self.locate_stop(cur, &far, ctl, s).unwrap_or(far);
+                return Err(Event::Stop(i, n));
+            }
+        }
+        if folded {
+            Err(Event::Fold(far))
+        } else if unstable {
+            Err(Event::Instability(far))
+        } else {
+            Ok(far)
+        }
+    }
+
+    /// Points at the stations whose λ lies between nodes a (exclusive) and b (inclusive), solved
+    /// under load control from the Hermite cubic between them.
+    fn emit_stations(&mut self, a: &Node<M>, b: &Node<M>, st: &[(usize, f64)], next: &mut usize, dir: f64) {
+        while let Some(&(idx, ls)) = st.get(*next) {
+            if !((ls - a.lam) * dir > 0.0 && (b.lam - ls) * dir >= 0.0) {
+                break;
+            }
+            if let Ok(n) = self.solve_between(a, b, Control::Load, ls) {
+                self.push(&n, PointKind::Station(idx), 0);
+            }
+            *next += 1;
+        }
+    }
+
+    /// Locate a threshold crossing between a (before) and b (beyond) by Illinois regula falsi on
+    /// the path parameter; the located point is on a's side, within `locate_tol` in λ.
+    fn locate_stop(&mut self, a: &Node<M>, b: &Node<M>, ctl: Control, s: &Stop) -> Option<Node<M>> {
+        let sg = if s.rising { 1.0 } else { -1.0 };
+        let f = |n: &Node<M>| sg * (n.out[s.output] - s.threshold);
+        let (pa, pb) = (a.param(ctl), b.param(ctl));
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        let (mut flo, mut fhi) = (f(a), f(b));
+        let mut lam_lo = a.lam;
+        let mut lam_hi = b.lam;
+        let mut best: Option<Node<M>> = None;
+        let mut side = 0i32;
+        let tol = self.o.locate_tol * a.lam.abs().max(b.lam.abs()).max(1e-300);
+        let ftol = 1e-10 * s.threshold.abs().max(1e-300);
+        for _ in 0..40 {
+            if (lam_hi - lam_lo).abs() <= tol {
+                break;
+            }
+            let mut x = lo - flo * (hi - lo) / (fhi - flo);
+            if !(x > lo && x < hi) {
+                x = 0.5 * (lo + hi);
+            }
+            let n = self.solve_between(a, b, ctl, pa + x * (pb - pa)).ok()?;
+            let fx = f(&n);
+            if fx < 0.0 {
+                lo = x;
+                flo = fx;
+                lam_lo = n.lam;
+                if side == -1 {
+                    fhi *= 0.5;
+                }
+                side = -1;
+                let done = fx.abs() <= ftol;
+                best = Some(n);
+                if done {
+                    break;
+                }
+            } else {
+                hi = x;
+                fhi = fx;
+                lam_hi = n.lam;
+                if side == 1 {
+                    flo *= 0.5;
+                }
+                side = 1;
+                if fx.abs() <= ftol {
+                    best = Some(n);
+                    break;
+                }
+            }
+        }
+        best
+    }
+
+    /// Locate the fold (dλ/dc = 0) between a (before it) and b (beyond) under functional control
+    /// by secant steps on the stiffness k = dλ/dc (safeguarded by the bracket), to `locate_tol`
+    /// relative in λ: the error estimate of a state at c is ½|k (c* − c)| with c* the next secant
+    /// iterate. Returns the located state (b itself when it is within tolerance).
+    fn locate_fold(&mut self, a: &Node<M>, b: Node<M>) -> Node<M> {
+        let (Some(_), Some(_)) = (a.c, b.c) else { return b };
+        // bracket (c, k) and the last two iterates
+        let (mut lo, mut hi) = ((a.c.unwrap_or(0.0), a.stiffness().unwrap_or(0.0)), (b.c.unwrap_or(0.0), b.stiffness().unwrap_or(0.0)));
+        let mut x0 = lo;
+        let mut last = b;
+        let mut near: Option<Node<M>> = None; // the latest rising-side state (for the prediction)
+        for _ in 0..30 {
+            let x1 = (last.c.unwrap_or(0.0), last.stiffness().unwrap_or(0.0));
+            let mut cs = x1.0 - x1.1 * (x1.0 - x0.0) / (x1.1 - x0.1);
+            let (bl, bh) = (lo.0.min(hi.0), lo.0.max(hi.0));
+            if !(cs > bl && cs < bh) {
+                cs = 0.5 * (lo.0 + hi.0);
+            }
+            let err = 0.5 * (x1.1 * (cs - x1.0)).abs();
+            if self.trace {
+                eprintln!("[fold] λ {:.10} c {:.6} k {:.4e} stable {}; bracket c ∈ [{:.6}, {:.6}]; next c* {cs:.6}, λ error estimate {err:.3e}", last.lam, x1.0, x1.1, last.stable, lo.0, hi.0);
+            }
+            // λ to `locate_tol`, and the state itself (c) to `locate_tol` relative, so that the
+            // outputs at the fold (θ, τ, which vary along the fold at first order) are pinned too
+            if err <= self.o.locate_tol * last.lam.abs().max(1e-300) && (cs - x1.0).abs() <= self.o.locate_tol * x1.0.abs() {
+                break;
+            }
+            let from = near.as_ref().unwrap_or(a);
+            let (qp, lp) = hermite(from, &last, Control::Functional, cs);
+            let lin = from.q.clone();
+            let n = match self.newton(&qp, lp, Some(cs), Some(&lin), true) {
+                Ok(n) => n,
+                Err(_) => break,
+            };
+            let kn = n.stiffness().unwrap_or(0.0);
+            if kn * lo.1 > 0.0 {
+                lo = (cs, kn);
+            } else {
+                hi = (cs, kn);
+            }
+            x0 = x1;
+            let prev = std::mem::replace(&mut last, n);
+            if prev.stiffness().unwrap_or(0.0) * a.stiffness().unwrap_or(0.0) > 0.0 {
+                near = Some(prev);
+            }
+        }
+        last
+    }
+
+    /// Locate the loss of stability between a (stable) and b (unstable) by bisection on the path
+    /// parameter, to `locate_tol` relative in λ; the last stable state, or None when a is it.
+    fn locate_instability(&mut self, a: &Node<M>, b: &Node<M>, ctl: Control) -> Option<Node<M>> {
+        let mut lo: Option<Node<M>> = None;
+        let mut hi: Option<Node<M>> = None;
+        for _ in 0..40 {
+            let (l, h) = (lo.as_ref().unwrap_or(a), hi.as_ref().unwrap_or(b));
+            if (h.lam - l.lam).abs() <= self.o.locate_tol * l.lam.abs().max(1e-300) {
+                break;
+            }
+            let mid = 0.5 * (l.param(ctl) + h.param(ctl));
+            let n = match self.solve_between(l, h, ctl, mid) {
+                Ok(n) => n,
+                Err(_) => break,
+            };
+            if n.stable {
+                lo = Some(n);
+            } else {
+                hi = Some(n);
+            }
+        }
+        lo
+    }
+}
+
+/// The Hermite cubic through nodes a and b (values and tangents in the parameter), at s.
+fn hermite<M: PathModel>(a: &Node<M>, b: &Node<M>, ctl: Control, s: f64) -> (Vec<f64>, f64) {
+    let pa = a.param(ctl);
+    let pb = b.param(ctl);
+    let hh = pb - pa;
+    if hh == 0.0 || !hh.is_finite() {
+        return extrapolate(a, None, ctl, s);
+    }
+    let (ta, la) = a.rates(ctl);
+    let (tb, lb) = b.rates(ctl);
+    let x = (s - pa) / hh;
+    let (h00, h10, h01, h11) = (2.0 * x * x * x - 3.0 * x * x + 1.0, x * x * x - 2.0 * x * x + x, -2.0 * x * x * x + 3.0 * x * x, x * x * x - x * x);
+    let q: Vec<f64> = (0..a.q.len()).map(|i| h00 * a.q[i] + h10 * hh * ta[i] + h01 * b.q[i] + h11 * hh * tb[i]).collect();
+    let lam = match ctl {
+        Control::Load => s,
+        Control::Functional => h00 * a.lam + h10 * hh * la + h01 * b.lam + h11 * hh * lb,
+    };
+    (q, lam)
+}
+
+/// Extrapolation from the current node (value and tangent) and the previous one (value): the
+/// quadratic q(s) = q_c + t_c d + κ d² through q_p; the tangent line without a previous node.
+fn extrapolate<M: PathModel>(cur: &Node<M>, prev: Option<&Node<M>>, ctl: Control, s: f64) -> (Vec<f64>, f64) {
+    let pc = cur.param(ctl);
+    let (tc, lc) = cur.rates(ctl);
+    let d = s - pc;
+    let quad = prev.map(|p| (p, p.param(ctl) - pc)).filter(|(_, dm)| *dm != 0.0 && dm.is_finite());
+    match quad {
+        Some((p, dm)) => {
+            let q: Vec<f64> = (0..cur.q.len())
+                .map(|i| {
+                    let k = (p.q[i] - cur.q[i] - tc[i] * dm) / (dm * dm);
+                    cur.q[i] + tc[i] * d + k * d * d
+                })
+                .collect();
+            let lam = match ctl {
+                Control::Load => s,
+                Control::Functional => {
+                    let k = (p.lam - cur.lam - lc * dm) / (dm * dm);
+                    cur.lam + lc * d + k * d * d
+                }
+            };
+            (q, lam)
+        }
+        None => {
+            let q: Vec<f64> = cur.q.iter().zip(&tc).map(|(x, t)| x + d * t).collect();
+            let lam = match ctl {
+                Control::Load => s,
+                Control::Functional => cur.lam + d * lc,
+            };
+            (q, lam)
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// The full-order model as a path model
+
+/// A [`Model`] under loads interpolated linearly between `from` (λ = 0) and `to` (λ = 1), with
+/// the cavity volume as control functional and outputs read through adjoint functionals.
+pub struct LoadPath<'a> {
+    pub model: &'a Model,
+    pub from: Loads,
+    pub to: Loads,
+    /// recorded outputs (evaluated on the converged state, as the adjoint differentiates them)
+    pub functionals: Vec<Functional>,
+    /// further outputs computed from the assembly (after the functionals' values)
+    pub extra: Vec<ExtraOutput<'a>>,
+    /// the cavity volume is the control functional (when the model has a cavity)
+    pub volume_control: bool,
+}
+
+/// An output of a [`LoadPath`] computed from the full assembly of a converged state.
+pub type ExtraOutput<'a> = Box<dyn Fn(&Assembled) -> f64 + Send + Sync + 'a>;
+
+impl<'a> LoadPath<'a> {
+    pub fn new(model: &'a Model, from: Loads, to: Loads, functionals: Vec<Functional>) -> Self {
+        LoadPath { model, from, to, functionals, extra: Vec::new(), volume_control: model.cavity.is_some() }
+    }
+    /// The loads at λ.
+    pub fn loads(&self, lam: f64) -> Loads {
+        Loads::lerp(&self.from, &self.to, lam)
+    }
+    fn presc_moves(&self) -> bool {
+        self.from.presc != self.to.presc
+    }
+    /// The assembly at (q, λ) (full fields: displacements, reactions), e.g. for output files.
+    pub fn assemble(&self, q: &[f64], lam: f64) -> Result<Assembled, ElementError> {
+        self.model.assemble(q, &self.loads(lam), false)
+    }
+}
+
+fn elem_eval(e: ElementError) -> EvalFailure {
+    match e {
+        ElementError::Inverted(_) | ElementError::BadReference(_) => EvalFailure::Inversion,
+        ElementError::NonFinite(_) => EvalFailure::NonFinite,
+    }
+}
+
+impl<'a> PathModel for LoadPath<'a> {
+    type Matrix = Vec<f64>;
+    type Factor = Factor;
+    fn dim(&self) -> usize {
+        self.model.n_reduced()
+    }
+    fn eval(&self, q: &[f64], lam: f64, tangent: bool, lin: Option<&[f64]>) -> Result<Eval<Vec<f64>>, EvalFailure> {
+        let loads = self.loads(lam);
+        let a = self.model.assemble_lin(q, &loads, tangent, lin).map_err(elem_eval)?;
+        let scale = {
+            let fb: f64 = loads.body_forces.iter().map(|f| f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sum::<f64>().sqrt();
+            a.f_scale.max(fb).max(norm(&loads.nodal_forces))
+        };
+        let control = (self.volume_control && self.model.cavity.is_some()).then(|| (a.volume, a.dvol.clone()));
+        Ok(Eval { r: a.r, scale, control, min_det: a.min_det_f, k: a.k })
+    }
+    fn factor(&self, k: &Vec<f64>, definite: bool) -> Result<Factor, SolveError> {
+        if definite {
+            self.model.factor(k)
+        } else {
+            self.model.factor_indefinite(k)
+        }
+    }
+    fn solve(&self, f: &Factor, b: &[f64]) -> Result<Vec<f64>, SolveError> {
+        f.solve(b)
+    }
+    fn load_rate(&self, q: &[f64], lam: f64, ev: &Eval<Vec<f64>>) -> Result<Vec<f64>, EvalFailure> {
+        if !self.presc_moves() {
+            // r is affine in the pressure and the dead loads at fixed q:
+            // ∂r/∂λ = −Δp ℓ(q) − Δ(dead loads)
+            let dp = self.to.pressure - self.from.pressure;
+            let mut rl: Vec<f64> = match &ev.control {
+                Some((_, g)) => self.model.unit_pressure_load(g).into_iter().map(|v| -dp * v).collect(),
+                None if dp != 0.0 => {
+                    let a = self.model.assemble(q, &self.loads(lam), false).map_err(elem_eval)?;
+                    self.model.unit_pressure_load(&a.dvol).into_iter().map(|v| -dp * v).collect()
+                }
+                None => vec![0.0; self.dim()],
+            };
+            let dead_moves = self.from.body_forces != self.to.body_forces || self.from.nodal_forces != self.to.nodal_forces;
+            if dead_moves {
+                // the dead part by difference of two residuals at zero pressure change
+                let mut l1 = self.loads(lam + 1.0);
+                let mut l0 = self.loads(lam);
+                l1.pressure = 0.0;
+                l0.pressure = 0.0;
+                let r1 = self.model.assemble(q, &l1, false).map_err(elem_eval)?.r;
+                let r0 = self.model.assemble(q, &l0, false).map_err(elem_eval)?.r;
+                for (v, (a, b)) in rl.iter_mut().zip(r1.iter().zip(&r0)) {
+                    *v += a - b;
+                }
+            }
+            return Ok(rl);
+        }
+        // prescribed values move: central difference of the residual (r is not affine in them)
+        let eps = 1e-6;
+        let rp = self.model.assemble(q, &self.loads(lam + eps), false).map_err(elem_eval)?.r;
+        let rm = self.model.assemble(q, &self.loads(lam - eps), false).map_err(elem_eval)?.r;
+        Ok(rp.iter().zip(&rm).map(|(a, b)| (a - b) / (2.0 * eps)).collect())
+    }
+    fn outputs(&self, q: &[f64], lam: f64, _ev: &Eval<Vec<f64>>) -> Vec<f64> {
+        let n = self.functionals.len() + self.extra.len();
+        if n == 0 {
+            return Vec::new();
+        }
+        match self.model.assemble(q, &self.loads(lam), false) {
+            Ok(a) => {
+                let st = adjoint::State::from_assembly(self.model, &a);
+                let mut out: Vec<f64> = self.functionals.iter().map(|f| f.eval(self.model, &st).unwrap_or(f64::NAN)).collect();
+                out.extend(self.extra.iter().map(|f| f(&a)));
+                out
+            }
+            Err(_) => vec![f64::NAN; n],
+        }
+    }
+}
+
+/// The end of a path between two loads of a [`Model`] ([`ramp`]).
+pub struct Ramp {
+    pub end: PathEnd,
+    /// the last converged state, its λ and loads, and its assembly (full fields)
+    pub q: Vec<f64>,
+    pub lam: f64,
+    pub loads: Loads,
+    pub assembled: Option<Assembled>,
+    pub points: Vec<PathPoint>,
+    pub stats: PathStats,
+}
+
+/// Follow `model` from the converged state `q0` under `from` to the loads `to` (λ from 0 to 1)
+/// and return the last state with its assembly: [`follow`] on a [`LoadPath`] without outputs.
+pub fn ramp(model: &Model, q0: &[f64], from: &Loads, to: &Loads, opts: &ContinuationOptions) -> Ramp {
+    let lp = LoadPath::new(model, from.clone(), to.clone(), Vec::new());
+    let res = follow(&lp, q0, 0.0, 1.0, &[], &[], opts);
+    let (q, lam) = res.points.last().map(|p| (p.q.clone(), p.lam)).unwrap_or((q0.to_vec(), 0.0));
+    let loads = lp.loads(lam);
+    let assembled = model.assemble(&q, &loads, false).ok();
+    Ramp { end: res.end, q, lam, loads, assembled, points: res.points, stats: res.stats }
+}

@@ -15,7 +15,11 @@ use twistopt::meshing::{build_mesh, mesh_shape_derivatives, MeshSpec, MESH_PRESE
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.partial_cmp(b).expect("finite timings"));
     let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
 
 fn time<F: FnMut()>(runs: usize, mut f: F) -> (f64, f64, f64) {
@@ -40,10 +44,7 @@ fn wanted(name: &str) -> bool {
 
 fn merge(key: &str, section: Value) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/benchmarks/results.json");
-    let mut root: Value = std::fs::read_to_string(&path)
-        .ok()
-        .and_then(|s| serde_json::from_str(&s).ok())
-        .unwrap_or_else(|| json!({}));
+    let mut root: Value = std::fs::read_to_string(&path).ok().and_then(|s| serde_json::from_str(&s).ok()).unwrap_or_else(|| json!({}));
     if !root.is_object() {
         root = json!({});
     }
@@ -92,7 +93,14 @@ fn element_kernel(geom: &ActuatorGeometry) {
     let conn = mesh.element(0);
     let x0: Vec<[f64; 3]> = conn.iter().map(|&n| mesh.nodes[n]).collect();
     // a deformed state: 10 % of a smooth displacement field on top of the pressurised one
-    let u: Vec<[f64; 3]> = conn.iter().map(|&n| { let x = mesh.nodes[n]; let v = a.u[n]; [v[0] + 0.1 * x[1].sin(), v[1] + 0.05 * x[2].cos(), v[2] + 0.02 * x[0]] }).collect();
+    let u: Vec<[f64; 3]> = conn
+        .iter()
+        .map(|&n| {
+            let x = mesh.nodes[n];
+            let v = a.u[n];
+            [v[0] + 0.1 * x[1].sin(), v[1] + 0.05 * x[2].cos(), v[2] + 0.02 * x[0]]
+        })
+        .collect();
     let nd = 3 * x0.len();
     let mut f = vec![0.0; nd];
     let mut k = vec![0.0; nd * nd];
@@ -134,7 +142,12 @@ fn sweep_throughput() {
     let cpu: f64 = rows.iter().map(|r| r.wall_time_s).sum();
     let rate = rows.len() as f64 / wall;
     let grid = 39_864.0;
-    println!("sweep_throughput (sweep preset, 2 threads): {} designs in {wall:.1} s = {rate:.4} designs/s; {:.1} s per design on one thread; full Table-I grid ≈ {:.0} h at this rate (target ≤ 1 h)", rows.len(), cpu / rows.len() as f64, grid / rate / 3600.0);
+    println!(
+        "sweep_throughput (sweep preset, 2 threads): {} designs in {wall:.1} s = {rate:.4} designs/s; {:.1} s per design on one thread; full Table-I grid ≈ {:.0} h at this rate (target ≤ 1 h)",
+        rows.len(),
+        cpu / rows.len() as f64,
+        grid / rate / 3600.0
+    );
     merge(
         "sweep_throughput",
         json!({
@@ -215,10 +228,12 @@ fn newton_step(geom: &ActuatorGeometry) {
         });
         let fac = sm.model.factor(&k);
         let ts = match &fac {
-            Ok(f) => time(runs, || {
-                std::hint::black_box(f.solve(&a.r).expect("solve"));
-            })
-            .0,
+            Ok(f) => {
+                time(runs, || {
+                    std::hint::black_box(f.solve(&a.r).expect("solve"));
+                })
+                .0
+            }
             Err(_) => f64::NAN,
         };
         println!(

@@ -30,7 +30,9 @@ fn main() -> Result<()> {
             let mesh = m.file_name().unwrap().to_string_lossy().to_string();
             let el = r["twistopt"]["element"].as_str().unwrap_or("standard").to_string();
             let cel = r["ccx"]["element"].as_str().unwrap_or("?").to_string();
-            let Some(scenes) = r["scenes"].as_object() else { continue };
+            let Some(scenes) = r["scenes"].as_object() else {
+                continue;
+            };
             for (scene, s) in scenes {
                 let f = |v: &serde_json::Value| v.as_f64();
                 let row = s["comparison"].as_array().and_then(|a| a.last()).cloned().unwrap_or_default();

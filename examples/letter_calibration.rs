@@ -111,10 +111,7 @@ fn read_letter(path: &Path) -> Result<Letter> {
     let ex = design("/sim_example_fig4/design")?;
     let pts = v.pointer("/sim_example_fig4/twist_deg_at_p").and_then(Value::as_array).ok_or_else(|| anyhow!("paper.json: twist_deg_at_p"))?;
     let pt = |pos: bool| -> Result<(f64, f64)> {
-        pts.iter()
-            .filter_map(|q| Some((q.get("p_kPa")?.as_f64()?, q.get("theta_deg")?.as_f64()?)))
-            .find(|q| (q.0 > 0.0) == pos)
-            .ok_or_else(|| anyhow!("paper.json: example point"))
+        pts.iter().filter_map(|q| Some((q.get("p_kPa")?.as_f64()?, q.get("theta_deg")?.as_f64()?))).find(|q| (q.0 > 0.0) == pos).ok_or_else(|| anyhow!("paper.json: example point"))
     };
     let (pp, tp) = pt(true)?;
     let (pm, tm) = pt(false)?;
@@ -306,15 +303,23 @@ fn score(case: &Case, letter: &Letter, solves: &BTreeMap<&'static str, Result<So
         let om = energy_density(t, q);
         figs.insert("energy_omega".into(), json!({"model": om, "letter": letter.omega, "rel_err": (om - letter.omega) / letter.omega, "note": "reported, not fitted"}));
     }
-    let radii: BTreeMap<String, Value> =
-        solves.iter().map(|(k, r)| (k.to_string(), r.as_ref().map(|s| json!({"max_radius_mm": s.max_radius_mm, "p_kPa": s.p_reached, "status": s.status, "p_limit_kPa": s.p_limit, "newton": s.newton, "time_s": s.time_s})).unwrap_or_else(|e| json!({"error": e})))).collect();
+    let radii: BTreeMap<String, Value> = solves
+        .iter()
+        .map(|(k, r)| {
+            (
+                k.to_string(),
+                r.as_ref()
+                    .map(|s| json!({"max_radius_mm": s.max_radius_mm, "p_kPa": s.p_reached, "status": s.status, "p_limit_kPa": s.p_limit, "newton": s.newton, "time_s": s.time_s}))
+                    .unwrap_or_else(|e| json!({"error": e})),
+            )
+        })
+        .collect();
     let table = json!({"figures": figs, "solves": radii, "n_figures": wsum});
     if wsum == 0.0 {
         return (table, None);
     }
     (table, Some((f / wsum, grad.into_iter().map(|(k, g)| (k, g / wsum)).collect())))
 }
-
 
 /// Fit one case; returns its result line.
 fn run_case(case: &Case, letter: &Letter, preset: &str, max_evals: usize) -> Result<Value> {
@@ -380,7 +385,9 @@ fn run_case(case: &Case, letter: &Letter, preset: &str, max_evals: usize) -> Res
         }
         targets.push(pmax);
         let v = match geometry(case, s.design, &best_params).and_then(|g| run_pressure(&g, &opts, SceneKind::Free, &targets).map_err(anyhow::Error::from)) {
-            Ok(r) => json!({"status": r.status, "cause": r.cause, "points": r.steps.iter().map(|k| json!([k.p_kpa, k.theta_deg, k.max_radius_mm])).collect::<Vec<_>>()}),
+            Ok(r) => {
+                json!({"status": r.status, "cause": r.cause, "points": r.steps.iter().map(|k| json!([k.p_kpa, k.theta_deg, k.max_radius_mm])).collect::<Vec<_>>()})
+            }
             Err(e) => json!({"status": "not available", "cause": format!("{e:#}")}),
         };
         curves.insert(cid.into(), v);
@@ -394,8 +401,6 @@ fn run_case(case: &Case, letter: &Letter, preset: &str, max_evals: usize) -> Res
         "curves": curves, "wall_time_s": t0.elapsed().as_secs_f64(),
     }))
 }
-
-
 
 fn arg(args: &[String], key: &str) -> Option<String> {
     args.iter().position(|a| a == key).and_then(|i| args.get(i + 1).cloned())
@@ -423,8 +428,20 @@ fn fmt_fig(f: &Value) -> String {
     match (f.get("model").and_then(Value::as_f64), rel_err(f)) {
         (Some(m), Some(e)) => {
             let note = f.get("note").and_then(Value::as_str).unwrap_or("");
-            let mark = if note.contains("clipped") { "≥ " } else if note.starts_with(FAILED_NOTE) { "† " } else { "" };
-            let mv = if m.abs() >= 100.0 { format!("{m:.0}") } else if m.abs() >= 10.0 { format!("{m:.1}") } else { format!("{m:.3}") };
+            let mark = if note.contains("clipped") {
+                "≥ "
+            } else if note.starts_with(FAILED_NOTE) {
+                "† "
+            } else {
+                ""
+            };
+            let mv = if m.abs() >= 100.0 {
+                format!("{m:.0}")
+            } else if m.abs() >= 10.0 {
+                format!("{m:.1}")
+            } else {
+                format!("{m:.3}")
+            };
             format!("{mark}{mv} ({:+.0} %)", 100.0 * e)
         }
         _ => "n/a".into(),
@@ -481,7 +498,12 @@ fn report(out: &Path, letter: &Letter) -> Result<()> {
             }
             let fval = r[key]["f"].as_f64().unwrap_or(f64::NAN);
             let params = r[key]["params"].as_object().map(|m| m.iter().map(|(k, v)| format!("{k} = {:.2}", v.as_f64().unwrap_or(f64::NAN))).collect::<Vec<_>>().join(", ")).unwrap_or_default();
-            md += &format!(" {:.2} | {within}/{n}{} | {} |\n", fval.sqrt(), if avail < n { format!(" ({} n/a)", n - avail) } else { String::new() }, if which == "fitted" { params.clone() } else { String::new() });
+            md += &format!(
+                " {:.2} | {within}/{n}{} | {} |\n",
+                fval.sqrt(),
+                if avail < n { format!(" ({} n/a)", n - avail) } else { String::new() },
+                if which == "fitted" { params.clone() } else { String::new() }
+            );
             summary.push(json!({"case": r["case"], "which": which, "params": r[key]["params"], "rms_rel_err": fval.sqrt(), "within_25pct": within, "figures": n, "available": avail}));
         }
     }
@@ -515,9 +537,22 @@ fn report(out: &Path, letter: &Letter) -> Result<()> {
         let mut plot = LinePlot::new(title, "cavity pressure p (kPa)", "free twist θ (°, letter's sign)");
         for r in &rows {
             let c = &r["curves"][cid];
-            let Some(points) = c["points"].as_array() else { continue };
+            let Some(points) = c["points"].as_array() else {
+                continue;
+            };
             let xy: Vec<(f64, f64)> = points.iter().filter_map(|p| Some((p[0].as_f64()?, LETTER_SIGN * p[1].as_f64()?))).collect();
-            let label = format!("{} ({})", r["case"].as_str().unwrap_or(""), r["best_params"].as_object().map(|m| m.iter().map(|(k, v)| if k == P_GAMMA { format!("γ = {:.1}°", v.as_f64().unwrap_or(f64::NAN)) } else { format!("μ = {:.2} MPa", v.as_f64().unwrap_or(f64::NAN)) }).collect::<Vec<_>>().join(", ")).unwrap_or_default());
+            let label = format!(
+                "{} ({})",
+                r["case"].as_str().unwrap_or(""),
+                r["best_params"]
+                    .as_object()
+                    .map(|m| m
+                        .iter()
+                        .map(|(k, v)| if k == P_GAMMA { format!("γ = {:.1}°", v.as_f64().unwrap_or(f64::NAN)) } else { format!("μ = {:.2} MPa", v.as_f64().unwrap_or(f64::NAN)) })
+                        .collect::<Vec<_>>()
+                        .join(", "))
+                    .unwrap_or_default()
+            );
             let mut s = Series::new(label, xy);
             s.markers = false;
             plot = plot.with(s);

@@ -14,6 +14,11 @@ fn main() {
     for kind in [SceneKind::Free, SceneKind::Blocked] {
         let r = run_pressure(&geom, &opts, kind, &[p]).unwrap();
         println!("{} status {} ({}) dofs {} its {} time {:.2}s", r.scene, r.status, r.cause, r.dofs, r.newton_iterations, r.wall_time_s);
-        for s in &r.steps { println!("  p {:7.2} θ {:8.4}° w {:7.4} τ {:8.5} Nm rmax {:7.3} V {:9.1} detF {:.3} it {}", s.p_kpa, s.theta_deg, s.axial_mm, s.tau_nm, s.max_radius_mm, s.cavity_volume_mm3, s.min_det_f, s.newton_iterations); }
+        for s in &r.steps {
+            println!(
+                "  p {:7.2} θ {:8.4}° w {:7.4} τ {:8.5} Nm rmax {:7.3} V {:9.1} detF {:.3} it {}",
+                s.p_kpa, s.theta_deg, s.axial_mm, s.tau_nm, s.max_radius_mm, s.cavity_volume_mm3, s.min_det_f, s.newton_iterations
+            );
+        }
     }
 }

@@ -81,16 +81,7 @@ impl Variant {
         if n.len() != 3 {
             bail!("variant '{name}': size must be <Na>x<Nz>x<Nt>");
         }
-        let mut v = Variant {
-            name: name.to_string(),
-            na: n[0],
-            nz: n[1],
-            nt: n[2],
-            kind: ElementKind::Hex27,
-            pressure: PressureSpace::P1,
-            sector: true,
-            kappa_over_mu: DEFAULT_KAPPA_OVER_MU,
-        };
+        let mut v = Variant { name: name.to_string(), na: n[0], nz: n[1], nt: n[2], kind: ElementKind::Hex27, pressure: PressureSpace::P1, sector: true, kappa_over_mu: DEFAULT_KAPPA_OVER_MU };
         for s in parts {
             match s {
                 "hex8" => {
@@ -170,12 +161,9 @@ fn design_index(id: &str) -> Result<usize> {
     DESIGNS.iter().position(|d| d.0 == id).ok_or_else(|| anyhow!("unknown design '{id}' (D1 … D5)"))
 }
 
-
 fn loadavg() -> f64 {
     std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next()?.parse().ok()).unwrap_or(f64::NAN)
 }
-
-
 
 fn arg_value(args: &[String], key: &str) -> Option<String> {
     args.iter().position(|a| a == key).and_then(|i| args.get(i + 1).cloned())
@@ -219,11 +207,8 @@ fn run(args: &[String], out: &Path) -> Result<()> {
         .collect::<Result<_>>()?;
     std::fs::create_dir_all(out)?;
     let path = out.join("results.jsonl");
-    let done: BTreeSet<String> = read_json_lines(&path)
-        .iter()
-        .filter(|r| r["p_kPa"].as_f64() == Some(p_kpa))
-        .filter_map(|r| Some(format!("{}|{}", r["variant"].as_str()?, r["design"].as_str()?)))
-        .collect();
+    let done: BTreeSet<String> =
+        read_json_lines(&path).iter().filter(|r| r["p_kPa"].as_f64() == Some(p_kpa)).filter_map(|r| Some(format!("{}|{}", r["variant"].as_str()?, r["design"].as_str()?))).collect();
     let todo: Vec<(&Variant, usize)> = jobs.iter().flat_map(|(v, ds)| ds.iter().map(move |&d| (v, d))).filter(|(v, d)| !done.contains(&format!("{}|{}", v.name, DESIGNS[*d].0))).collect();
     eprintln!("{} (variant, design) pairs to run at {p_kpa} kPa on {threads} thread(s); {} already in {}", todo.len(), done.len(), path.display());
     if args.iter().any(|a| a == "--list") {
@@ -477,7 +462,9 @@ fn report(out: &Path) -> Result<()> {
     }
     // the reference and its alternates (coarser triples), primary first
     let ref_values = |d: &str, q: &str| -> Vec<f64> {
-        let Some(x) = reference.get(d).and_then(|m| m.get(q)) else { return Vec::new() };
+        let Some(x) = reference.get(d).and_then(|m| m.get(q)) else {
+            return Vec::new();
+        };
         let mut v: Vec<f64> = x["reference"].as_f64().into_iter().collect();
         v.extend(x["alternates"].as_array().into_iter().flatten().filter_map(|a| a["reference"].as_f64()));
         v
@@ -524,7 +511,9 @@ fn report(out: &Path) -> Result<()> {
         let mut failed = Vec::new();
         let mut dofs = None;
         for (d, ..) in DESIGNS {
-            let Some(row) = by.get(&(name.clone(), d.to_string())) else { continue };
+            let Some(row) = by.get(&(name.clone(), d.to_string())) else {
+                continue;
+            };
             if row["status"] != "ok" {
                 failed.push(d.to_string());
                 continue;
@@ -599,7 +588,8 @@ fn report(out: &Path) -> Result<()> {
     let t_of = |t: &Value| t["eval_time_s"]["mean"].as_f64().unwrap_or(f64::INFINITY);
     let e_of = |t: &Value, k: &str| t["max_rel_error"][k].as_f64().unwrap_or(f64::INFINITY);
     let pareto = |k: &str| -> Vec<String> {
-        let mut front: Vec<&Value> = complete.iter().copied().filter(|a| !complete.iter().any(|b| (t_of(b) < t_of(a) && e_of(b, k) <= e_of(a, k)) || (t_of(b) <= t_of(a) && e_of(b, k) < e_of(a, k)))).collect();
+        let mut front: Vec<&Value> =
+            complete.iter().copied().filter(|a| !complete.iter().any(|b| (t_of(b) < t_of(a) && e_of(b, k) <= e_of(a, k)) || (t_of(b) <= t_of(a) && e_of(b, k) < e_of(a, k)))).collect();
         front.sort_by(|a, b| t_of(a).total_cmp(&t_of(b)));
         front.iter().map(|t| t["variant"].as_str().unwrap_or("").to_string()).collect()
     };
@@ -676,10 +666,8 @@ fn report(out: &Path) -> Result<()> {
         let base = name.trim_end_matches("-full");
         for (d, ..) in DESIGNS {
             if let (Some(f), Some(b)) = (get(name, d), get(base, d)) {
-                let diffs: serde_json::Map<String, Value> = QUANTITIES
-                    .iter()
-                    .filter_map(|(q, _)| Some((q.to_string(), json!(((quantity(f, q)? - quantity(b, q)?) / quantity(b, q)?.abs()).abs()))))
-                    .collect();
+                let diffs: serde_json::Map<String, Value> =
+                    QUANTITIES.iter().filter_map(|(q, _)| Some((q.to_string(), json!(((quantity(f, q)? - quantity(b, q)?) / quantity(b, q)?.abs()).abs())))).collect();
                 let cpu = |r: &Value| r["cpu_time_s"].as_f64().unwrap_or(f64::NAN);
                 sector_full.insert(
                     format!("{name} vs {base}, {d}"),
@@ -690,7 +678,9 @@ fn report(out: &Path) -> Result<()> {
         }
     }
 
-    let variant_summary = |t: Option<&Value>| t.map(|t| json!({"variant": t["variant"], "eval_time_s": t["eval_time_s"]["mean"], "gradient_eval_time_s": t["gradient_eval_time_s"]["mean"], "max_rel_error": t["max_rel_error"], "max_rel_error_worst_reference": t["max_rel_error_worst_reference"]}));
+    let variant_summary = |t: Option<&Value>| {
+        t.map(|t| json!({"variant": t["variant"], "eval_time_s": t["eval_time_s"]["mean"], "gradient_eval_time_s": t["gradient_eval_time_s"]["mean"], "max_rel_error": t["max_rel_error"], "max_rel_error_worst_reference": t["max_rel_error_worst_reference"]}))
+    };
     let summary = json!({
         "description": format!("free + blocked scenes ramped 0 → {p_kpa} kPa; errors against a Richardson-extrapolated reference per design (family m × 12x4x1, each design's three finest members, Hex27 Q2/P1, sector, κ/μ = 300); times: mean over designs of the two scenes' forward ramps (mesh + model build included), single-threaded, as time on a dedicated core (process CPU time; the forward share in proportion to the wall-time split); gradient = forward + adjoint of every functional; the measured wall times (shared, loaded machine) are in wall_eval_time_s_measured"),
         "p_kPa": p_kpa,
@@ -716,10 +706,8 @@ fn report(out: &Path) -> Result<()> {
     });
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
     write_table(out, &summary)?;
-    let marks: Vec<(String, String)> = [(sweep, "recommended: sweep"), (default, "recommended: default / optimisation")]
-        .iter()
-        .filter_map(|(t, label)| Some(((*t)?["variant"].as_str()?.to_string(), label.to_string())))
-        .collect();
+    let marks: Vec<(String, String)> =
+        [(sweep, "recommended: sweep"), (default, "recommended: default / optimisation")].iter().filter_map(|(t, label)| Some(((*t)?["variant"].as_str()?.to_string(), label.to_string()))).collect();
     pareto_plot(&out.join("pareto"), &table, "all", &front_all, &marks, "max relative error over θ, τ, max radius, Ω and the five designs")?;
     pareto_plot(&out.join("pareto_theta_tau"), &table, "theta_tau", &front_theta_tau, &marks, "max relative error of θ and τ over the five designs")?;
     println!("wrote summary.json, table.md, pareto.{{png,svg}}, pareto_theta_tau.{{png,svg}} to {}", out.display());
@@ -740,12 +728,26 @@ fn write_table(out: &Path, s: &Value) -> Result<()> {
     let front: Vec<&str> = s["pareto_front_all"].as_array().map(|a| a.iter().filter_map(|x| x.as_str()).collect()).unwrap_or_default();
     let mut rows: Vec<&Value> = s["variants"].as_array().map(|a| a.iter().collect()).unwrap_or_default();
     rows.sort_by(|a, b| {
-        a["group"].as_str().unwrap_or("").cmp(b["group"].as_str().unwrap_or("")).reverse().then(a["eval_time_s"]["mean"].as_f64().unwrap_or(0.0).total_cmp(&b["eval_time_s"]["mean"].as_f64().unwrap_or(0.0)))
+        a["group"]
+            .as_str()
+            .unwrap_or("")
+            .cmp(b["group"].as_str().unwrap_or(""))
+            .reverse()
+            .then(a["eval_time_s"]["mean"].as_f64().unwrap_or(0.0).total_cmp(&b["eval_time_s"]["mean"].as_f64().unwrap_or(0.0)))
     });
     for r in rows {
         let name = r["variant"].as_str().unwrap_or("");
         let designs = r["designs"].as_array().map(|a| a.len()).unwrap_or(0);
-        let note = if r["all_designs"] == true { String::new() } else { format!(" ({} of {} designs{})", designs, DESIGNS.len(), r["failed_designs"].as_array().filter(|a| !a.is_empty()).map(|a| format!(", failed: {}", a.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(" "))).unwrap_or_default()) };
+        let note = if r["all_designs"] == true {
+            String::new()
+        } else {
+            format!(
+                " ({} of {} designs{})",
+                designs,
+                DESIGNS.len(),
+                r["failed_designs"].as_array().filter(|a| !a.is_empty()).map(|a| format!(", failed: {}", a.iter().filter_map(|x| x.as_str()).collect::<Vec<_>>().join(" "))).unwrap_or_default()
+            )
+        };
         t += &format!(
             "| {name}{}{note} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} / {} | {} | {:.2} | {:.2} | {:.2} | {:.0} | {} |\n",
             if r["reference_member"] == true { " †" } else { "" },
@@ -775,7 +777,12 @@ fn write_table(out: &Path, s: &Value) -> Result<()> {
     let sgn = |v: &Value| v.as_f64().map(|x| format!("{:+.2}", 100.0 * x)).unwrap_or_else(|| "—".into());
     let mut mesh_rows: Vec<&Value> = s["variants"].as_array().map(|a| a.iter().collect()).unwrap_or_default();
     mesh_rows.sort_by(|a, b| {
-        a["group"].as_str().unwrap_or("").cmp(b["group"].as_str().unwrap_or("")).reverse().then(a["eval_time_s"]["mean"].as_f64().unwrap_or(0.0).total_cmp(&b["eval_time_s"]["mean"].as_f64().unwrap_or(0.0)))
+        a["group"]
+            .as_str()
+            .unwrap_or("")
+            .cmp(b["group"].as_str().unwrap_or(""))
+            .reverse()
+            .then(a["eval_time_s"]["mean"].as_f64().unwrap_or(0.0).total_cmp(&b["eval_time_s"]["mean"].as_f64().unwrap_or(0.0)))
     });
     for r in mesh_rows {
         t += &format!("| {} |", r["variant"].as_str().unwrap_or(""));
@@ -835,7 +842,16 @@ fn write_table(out: &Path, s: &Value) -> Result<()> {
             for (k, v) in sf {
                 let d = &v["rel_difference"];
                 let e = |q: &str| d[q].as_f64().map(|x| format!("{x:.1e}")).unwrap_or_else(|| "—".into());
-                t += &format!("| {k} | {} | {} | {} | {} | {} / {} | {:.2} |\n", e("theta"), e("tau"), e("rmax_free"), e("omega"), v["dofs"][0], v["dofs"][1], v["cpu_time_ratio_full_over_sector"].as_f64().unwrap_or(f64::NAN));
+                t += &format!(
+                    "| {k} | {} | {} | {} | {} | {} / {} | {:.2} |\n",
+                    e("theta"),
+                    e("tau"),
+                    e("rmax_free"),
+                    e("omega"),
+                    v["dofs"][0],
+                    v["dofs"][1],
+                    v["cpu_time_ratio_full_over_sector"].as_f64().unwrap_or(f64::NAN)
+                );
             }
         }
     }
@@ -913,7 +929,15 @@ fn pareto_plot(stem: &Path, table: &[Value], key: &str, front: &[String], marks:
     let xr = (xmin / 1.6)..(xmax * 2.5);
     let yr = (ymin / 2.0).min(5e-4)..(ymax * 2.0).max(0.05);
     #[allow(clippy::too_many_arguments)]
-    fn inner<DB: DrawingBackend>(root: DrawingArea<DB, plotters::coord::Shift>, pts: &[(String, String, f64, f64, bool)], front: &[String], marks: &[(String, String)], xr: std::ops::Range<f64>, yr: std::ops::Range<f64>, y_label: &str) -> Result<()>
+    fn inner<DB: DrawingBackend>(
+        root: DrawingArea<DB, plotters::coord::Shift>,
+        pts: &[(String, String, f64, f64, bool)],
+        front: &[String],
+        marks: &[(String, String)],
+        xr: std::ops::Range<f64>,
+        yr: std::ops::Range<f64>,
+        y_label: &str,
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
@@ -930,8 +954,20 @@ fn pareto_plot(stem: &Path, table: &[Value], key: &str, front: &[String], marks:
             .configure_mesh()
             .x_desc("time per evaluation, free + blocked, on one core (s; mean over the five designs)")
             .y_desc(y_label)
-            .y_label_formatter(&|v| if *v >= 0.01 { format!("{:.0} %", v * 100.0) } else { format!("{:.2} %", v * 100.0) })
-            .x_label_formatter(&|v| if *v >= 1.0 { format!("{v:.0}") } else { format!("{v:.2}") })
+            .y_label_formatter(&|v| {
+                if *v >= 0.01 {
+                    format!("{:.0} %", v * 100.0)
+                } else {
+                    format!("{:.2} %", v * 100.0)
+                }
+            })
+            .x_label_formatter(&|v| {
+                if *v >= 1.0 {
+                    format!("{v:.0}")
+                } else {
+                    format!("{v:.2}")
+                }
+            })
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()
@@ -946,22 +982,14 @@ fn pareto_plot(stem: &Path, table: &[Value], key: &str, front: &[String], marks:
         // Pareto front
         let mut fp: Vec<(f64, f64)> = pts.iter().filter(|p| front.contains(&p.0)).map(|p| (p.2, p.3)).collect();
         fp.sort_by(|a, b| a.0.total_cmp(&b.0));
-        chart
-            .draw_series(LineSeries::new(fp, RGBColor(0, 0, 0).stroke_width(1)))
-            .map_err(e)?
-            .label("Pareto front")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(1)));
+        chart.draw_series(LineSeries::new(fp, RGBColor(0, 0, 0).stroke_width(1))).map_err(e)?.label("Pareto front").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(1)));
         for g in ["mesh (Hex27 Q2/P1)", "element", "κ/μ", "sector vs full"] {
             let c = group_colour(g);
             let ps: Vec<&(String, String, f64, f64, bool)> = pts.iter().filter(|p| p.1 == g).collect();
             if ps.is_empty() {
                 continue;
             }
-            chart
-                .draw_series(ps.iter().map(|p| Circle::new((p.2, p.3), 5, c.filled())))
-                .map_err(e)?
-                .label(g)
-                .legend(move |(x, y)| Circle::new((x + 9, y), 5, c.filled()));
+            chart.draw_series(ps.iter().map(|p| Circle::new((p.2, p.3), 5, c.filled()))).map_err(e)?.label(g).legend(move |(x, y)| Circle::new((x + 9, y), 5, c.filled()));
         }
         // labels: right of the point, or below / above it when a label nearby is already placed
         let mut placed: Vec<(f64, f64)> = Vec::new();
@@ -983,9 +1011,7 @@ fn pareto_plot(stem: &Path, table: &[Value], key: &str, front: &[String], marks:
         for (v, label) in marks {
             if let Some(p) = pts.iter().find(|p| &p.0 == v) {
                 chart.draw_series(std::iter::once(Circle::new((p.2, p.3), 12, RGBColor(200, 0, 0).stroke_width(2)))).map_err(e)?;
-                chart
-                    .draw_series(std::iter::once(Text::new(label.clone(), (p.2 / 1.12, p.3 / 1.45), ("sans-serif", 13).into_font().style(FontStyle::Bold).color(&RGBColor(200, 0, 0)))))
-                    .map_err(e)?;
+                chart.draw_series(std::iter::once(Text::new(label.clone(), (p.2 / 1.12, p.3 / 1.45), ("sans-serif", 13).into_font().style(FontStyle::Bold).color(&RGBColor(200, 0, 0))))).map_err(e)?;
             }
         }
         let refs: Vec<&(String, String, f64, f64, bool)> = pts.iter().filter(|p| p.4).collect();
@@ -996,14 +1022,7 @@ fn pareto_plot(stem: &Path, table: &[Value], key: &str, front: &[String], marks:
                 .label("Richardson family member (error not independent)")
                 .legend(|(x, y)| Circle::new((x + 9, y), 7, BLACK.stroke_width(1)));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()
-            .map_err(e)?;
+        chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).background_style(WHITE.mix(0.9)).border_style(BLACK).label_font(("sans-serif", 14)).draw().map_err(e)?;
         root.present().map_err(e)?;
         Ok(())
     }

@@ -23,7 +23,10 @@ fn main() {
         let asm = sm.model.assemble(&q, loads, true).unwrap();
         let k = asm.k.clone().unwrap();
         let mut seed = 12345u64;
-        let mut rnd = || { seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407); ((seed >> 33) as f64 / (1u64 << 31) as f64) - 0.5 };
+        let mut rnd = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 33) as f64 / (1u64 << 31) as f64) - 0.5
+        };
         let v: Vec<f64> = (0..n).map(|_| rnd()).collect();
         let kv = sm.model.sym_matvec(&k, &v);
         for h in [1e-4, 1e-5, 1e-6] {

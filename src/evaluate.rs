@@ -52,7 +52,9 @@ pub fn append_json_line(path: &Path, row: &impl serde::Serialize) -> Result<()> 
 /// The complete JSON lines of a file written by [`append_json_line`] (a torn or missing file
 /// gives the lines that parse; none when it does not exist).
 pub fn read_json_lines(path: &Path) -> Vec<serde_json::Value> {
-    let Ok(text) = std::fs::read_to_string(path) else { return Vec::new() };
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Vec::new();
+    };
     text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect()
 }
 
@@ -98,10 +100,7 @@ pub fn select_steps(r: &mut SceneResult, plan: &LoadPlan) {
             r.steps
                 .iter()
                 .map(|s| {
-                    s.p_kpa == 0.0
-                        || t.iter().any(|&p| same_p(p, s.p_kpa))
-                        || (s.p_kpa > 0.0 && s.p_kpa == pmax && !same_p(pmax, tmax))
-                        || (s.p_kpa < 0.0 && s.p_kpa == pmin && !same_p(pmin, tmin))
+                    s.p_kpa == 0.0 || t.iter().any(|&p| same_p(p, s.p_kpa)) || (s.p_kpa > 0.0 && s.p_kpa == pmax && !same_p(pmax, tmax)) || (s.p_kpa < 0.0 && s.p_kpa == pmin && !same_p(pmin, tmin))
                 })
                 .collect()
         }
@@ -177,15 +176,13 @@ pub fn omega_at_pressure(free: &[StepRecord], blocked: &[StepRecord], p: f64) ->
 /// has no converged step on that branch.
 pub fn common_pressure(free: &[StepRecord], blocked: &[StepRecord], positive: bool) -> Option<(f64, f64, f64)> {
     let extreme = |steps: &[StepRecord]| {
-        steps
-            .iter()
-            .map(|s| s.p_kpa)
-            .filter(|p| if positive { *p > 0.0 } else { *p < 0.0 })
-            .fold(None, |acc: Option<f64>, p| Some(match acc {
+        steps.iter().map(|s| s.p_kpa).filter(|p| if positive { *p > 0.0 } else { *p < 0.0 }).fold(None, |acc: Option<f64>, p| {
+            Some(match acc {
                 None => p,
                 Some(a) if positive => a.max(p),
                 Some(a) => a.min(p),
-            }))
+            })
+        })
     };
     let (pf, pb) = (extreme(free)?, extreme(blocked)?);
     Some((if positive { pf.min(pb) } else { pf.max(pb) }, pf, pb))
@@ -197,7 +194,9 @@ pub fn common_pressure(free: &[StepRecord], blocked: &[StepRecord], positive: bo
 /// interpolation between steps.
 pub fn complete_pair(geom: &crate::geometry::ActuatorGeometry, opts: &crate::scene::SceneOptions, free: &mut SceneResult, blocked: &mut SceneResult) {
     for positive in [true, false] {
-        let Some((pc, _, _)) = common_pressure(&free.steps, &blocked.steps, positive) else { continue };
+        let Some((pc, _, _)) = common_pressure(&free.steps, &blocked.steps, positive) else {
+            continue;
+        };
         for r in [&mut *free, &mut *blocked] {
             if let Some(kind) = SceneKind::parse(&r.scene) {
                 // a model that cannot be built leaves the result as it is (interpolated)
@@ -244,11 +243,7 @@ fn omega_pair(free: &SceneResult, blocked: &SceneResult, requested: &[f64]) -> V
     let positive = branch(true);
     let negative = branch(false);
     let table: Vec<Value> = requested.iter().filter_map(|&p| omega_at(&free.steps, &blocked.steps, p)).collect();
-    let note = if positive.is_null() {
-        format!("no positive pressure converged in both '{}' and '{}': Ω by the letter's rule does not apply", free.scene, blocked.scene)
-    } else {
-        String::new()
-    };
+    let note = if positive.is_null() { format!("no positive pressure converged in both '{}' and '{}': Ω by the letter's rule does not apply", free.scene, blocked.scene) } else { String::new() };
     json!({
         "scenes": [free.scene, blocked.scene],
         "positive": positive,
@@ -381,11 +376,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
     for group in v.scenes.chunks(concurrent) {
         let done: Vec<SceneResult> = std::thread::scope(|sc| {
             let handles: Vec<_> = group.iter().map(|&k| sc.spawn(move || run_one(k))).collect();
-            handles
-                .into_iter()
-                .zip(group)
-                .map(|(h, &k)| h.join().unwrap_or_else(|_| SceneResult::model_error(k, "the scene's thread panicked".into())))
-                .collect()
+            handles.into_iter().zip(group).map(|(h, &k)| h.join().unwrap_or_else(|_| SceneResult::model_error(k, "the scene's thread panicked".into()))).collect()
         });
         results.extend(done);
     }
@@ -393,7 +384,13 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
     for (fk, bk) in [(SceneKind::Free, SceneKind::Blocked), (SceneKind::PureTwist, SceneKind::PureTwistBlocked)] {
         let (fi, bi) = (results.iter().position(|r| r.scene == fk.name()), results.iter().position(|r| r.scene == bk.name()));
         if let (Some(fi), Some(bi)) = (fi, bi) {
-            let (a, b) = if fi < bi { let (l, r) = results.split_at_mut(bi); (&mut l[fi], &mut r[0]) } else { let (l, r) = results.split_at_mut(fi); (&mut r[0], &mut l[bi]) };
+            let (a, b) = if fi < bi {
+                let (l, r) = results.split_at_mut(bi);
+                (&mut l[fi], &mut r[0])
+            } else {
+                let (l, r) = results.split_at_mut(fi);
+                (&mut r[0], &mut l[bi])
+            };
             complete_pair(&v.geometry, &opts, a, b);
         }
     }
@@ -416,10 +413,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
     );
     omega.insert("V_m3".into(), json!(v_m3));
     let mut top = serde_json::Map::new();
-    for (label, key, fk, bk) in [
-        ("combined", "omega_J_m3", SceneKind::Free, SceneKind::Blocked),
-        ("pure_twist", "omega_pure_twist_J_m3", SceneKind::PureTwist, SceneKind::PureTwistBlocked),
-    ] {
+    for (label, key, fk, bk) in [("combined", "omega_J_m3", SceneKind::Free, SceneKind::Blocked), ("pure_twist", "omega_pure_twist_J_m3", SceneKind::PureTwist, SceneKind::PureTwistBlocked)] {
         if let (Some(f), Some(b)) = (find(fk), find(bk)) {
             let pair = omega_pair(f, b, &targets);
             top.insert(key.to_string(), pair["positive"].get("omega_J_m3").cloned().unwrap_or(Value::Null));
@@ -432,10 +426,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
     if let Some(tr) = &problem.torque_rotation {
         let mut topts = opts.clone();
         topts.keep_fields = false;
-        for (mode, axial_free, fk, bk) in [
-            ("combined", true, SceneKind::Free, SceneKind::Blocked),
-            ("pure-twist", false, SceneKind::PureTwist, SceneKind::PureTwistBlocked),
-        ] {
+        for (mode, axial_free, fk, bk) in [("combined", true, SceneKind::Free, SceneKind::Blocked), ("pure-twist", false, SceneKind::PureTwist, SceneKind::PureTwistBlocked)] {
             if !(v.scenes.contains(&fk) && v.scenes.contains(&bk)) {
                 continue;
             }
@@ -444,10 +435,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
                 Ok(list) => torque.extend(list.into_iter().map(|t| (mode.to_string(), t))),
                 Err(e) => {
                     for &p in &tr.pressures_kpa {
-                        torque.push((
-                            mode.to_string(),
-                            TorqueRotation { p_kpa: p, free_theta_deg: 0.0, points: vec![], nonlinearity: 0.0, status: SceneStatus::ModelError, cause: e.to_string() },
-                        ));
+                        torque.push((mode.to_string(), TorqueRotation { p_kpa: p, free_theta_deg: 0.0, points: vec![], nonlinearity: 0.0, status: SceneStatus::ModelError, cause: e.to_string() }));
                     }
                 }
             }
@@ -546,7 +534,19 @@ mod tests {
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
-        SceneResult { scene: name.into(), status: crate::scene::SceneStatus::Completed, cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, path: Default::default(), wall_time_s: 0.0, fields: None, states: Vec::new() }
+        SceneResult {
+            scene: name.into(),
+            status: crate::scene::SceneStatus::Completed,
+            cause: String::new(),
+            steps,
+            dofs: 1,
+            elements: 1,
+            newton_iterations: 1,
+            path: Default::default(),
+            wall_time_s: 0.0,
+            fields: None,
+            states: Vec::new(),
+        }
     }
 
     #[test]

@@ -10,11 +10,7 @@ fn main() {
             }
             // usage errors on one line (the full usage is in --help)
             let text = e.to_string();
-            let msg: Vec<&str> = text
-                .lines()
-                .map(str::trim)
-                .filter(|l| !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information"))
-                .collect();
+            let msg: Vec<&str> = text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information")).collect();
             eprintln!("{} (see --help)", msg.join(" "));
             std::process::exit(2);
         }

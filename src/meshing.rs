@@ -90,20 +90,8 @@ impl MeshSpec {
         MESH_PRESETS
             .iter()
             .find(|p| p.0 == name)
-            .map(|&(_, a, z, t, kind)| MeshSpec {
-                n_around: a,
-                n_along: z,
-                n_through: t,
-                kind,
-                sector: false,
-                arc_aligned: true,
-            })
-            .ok_or_else(|| {
-                MeshError::Spec(format!(
-                    "unknown mesh preset '{name}' (expected one of {} or <Na>x<Nz>x<Nt>, e.g. 48x16x2)",
-                    names.join(", ")
-                ))
-            })
+            .map(|&(_, a, z, t, kind)| MeshSpec { n_around: a, n_along: z, n_through: t, kind, sector: false, arc_aligned: true })
+            .ok_or_else(|| MeshError::Spec(format!("unknown mesh preset '{name}' (expected one of {} or <Na>x<Nz>x<Nt>, e.g. 48x16x2)", names.join(", "))))
     }
 
     /// A preset name or an explicit `<Na>x<Nz>x<Nt>` string (quadratic Hex27 by default; change
@@ -112,23 +100,12 @@ impl MeshSpec {
         let t = s.trim();
         if t.contains('x') && t.chars().next().is_some_and(|c| c.is_ascii_digit()) {
             let parts: Vec<&str> = t.split('x').collect();
-            let bad = || {
-                MeshError::Spec(format!(
-                    "cannot parse mesh size '{s}' (expected <Na>x<Nz>x<Nt> with positive integers, e.g. 48x16x2)"
-                ))
-            };
+            let bad = || MeshError::Spec(format!("cannot parse mesh size '{s}' (expected <Na>x<Nz>x<Nt> with positive integers, e.g. 48x16x2)"));
             if parts.len() != 3 {
                 return Err(bad());
             }
             let n: Vec<usize> = parts.iter().map(|p| p.parse::<usize>().map_err(|_| bad())).collect::<Result<_, _>>()?;
-            let spec = MeshSpec {
-                n_around: n[0],
-                n_along: n[1],
-                n_through: n[2],
-                kind: ElementKind::Hex27,
-                sector: false,
-                arc_aligned: true,
-            };
+            let spec = MeshSpec { n_around: n[0], n_along: n[1], n_through: n[2], kind: ElementKind::Hex27, sector: false, arc_aligned: true };
             spec.validate()?;
             Ok(spec)
         } else {
@@ -156,25 +133,16 @@ impl MeshSpec {
 
     pub fn validate(&self) -> Result<(), MeshError> {
         if self.n_around < 6 || !self.n_around.is_multiple_of(3) {
-            return Err(MeshError::Spec(format!(
-                "n_around = {} must be a multiple of 3 and at least 6",
-                self.n_around
-            )));
+            return Err(MeshError::Spec(format!("n_around = {} must be a multiple of 3 and at least 6", self.n_around)));
         }
         if self.n_along < 4 || !self.n_along.is_multiple_of(4) {
-            return Err(MeshError::Spec(format!(
-                "n_along = {} must be a positive multiple of 4 (element faces on the profile junctions)",
-                self.n_along
-            )));
+            return Err(MeshError::Spec(format!("n_along = {} must be a positive multiple of 4 (element faces on the profile junctions)", self.n_along)));
         }
         if self.n_through < 1 {
             return Err(MeshError::Spec("n_through must be at least 1".into()));
         }
         if self.n_around * self.n_along * self.n_through > 1_000_000 {
-            return Err(MeshError::Spec(format!(
-                "{} elements requested; the limit is 1 000 000",
-                self.n_around * self.n_along * self.n_through
-            )));
+            return Err(MeshError::Spec(format!("{} elements requested; the limit is 1 000 000", self.n_around * self.n_along * self.n_through)));
         }
         Ok(())
     }
@@ -188,7 +156,11 @@ impl MeshSpec {
         [na, q * self.n_along + 1, q * self.n_through + 1]
     }
     fn elements_around(&self) -> usize {
-        if self.sector { self.n_around / 3 } else { self.n_around }
+        if self.sector {
+            self.n_around / 3
+        } else {
+            self.n_around
+        }
     }
 }
 
@@ -407,11 +379,7 @@ pub fn build_mesh(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<ActuatorMe
     if spec.kind == ElementKind::Hex20 {
         let map = reduction_map(&mesh, ElementKind::Hex20);
         mesh = mesh.to_kind(ElementKind::Hex20);
-        cyclic_pairs = cyclic_pairs
-            .into_iter()
-            .filter(|(a, b)| map[*a] != usize::MAX && map[*b] != usize::MAX)
-            .map(|(a, b)| (map[a], map[b]))
-            .collect();
+        cyclic_pairs = cyclic_pairs.into_iter().filter(|(a, b)| map[*a] != usize::MAX && map[*b] != usize::MAX).map(|(a, b)| (map[a], map[b])).collect();
     }
     let quality = mesh_quality(&mesh)?;
     Ok(ActuatorMesh { mesh, cyclic_pairs, quality, spec: *spec })
@@ -427,13 +395,7 @@ pub fn mesh_shape_derivatives(geom: &ActuatorGeometry, spec: &MeshSpec) -> Resul
     let map = if spec.kind == ElementKind::Hex20 {
         let (lat_kind, connectivity, _, _, _) = lattice_topology(spec);
         let n = spec.lattice_dims().iter().product();
-        let tmp = Mesh {
-            nodes: vec![[0.0; 3]; n],
-            kind: lat_kind,
-            connectivity,
-            node_sets: BTreeMap::new(),
-            face_sets: BTreeMap::new(),
-        };
+        let tmp = Mesh { nodes: vec![[0.0; 3]; n], kind: lat_kind, connectivity, node_sets: BTreeMap::new(), face_sets: BTreeMap::new() };
         Some(reduction_map(&tmp, ElementKind::Hex20))
     } else {
         None
@@ -468,13 +430,8 @@ pub fn shape_gradients(kind: ElementKind, xi: [f64; 3]) -> Vec<[f64; 3]> {
 /// Natural points where the Jacobian is checked: the 8 corners plus the Gauss points
 /// (2×2×2 for Hex8, 3×3×3 for quadratic elements).
 pub fn quality_points(kind: ElementKind) -> Vec<[f64; 3]> {
-    let mut pts: Vec<[f64; 3]> =
-        HEX27_NATURAL[..8].iter().map(|a| [a[0] as f64, a[1] as f64, a[2] as f64]).collect();
-    let g: Vec<f64> = if kind == ElementKind::Hex8 {
-        vec![-1.0 / 3f64.sqrt(), 1.0 / 3f64.sqrt()]
-    } else {
-        vec![-(0.6f64).sqrt(), 0.0, 0.6f64.sqrt()]
-    };
+    let mut pts: Vec<[f64; 3]> = HEX27_NATURAL[..8].iter().map(|a| [a[0] as f64, a[1] as f64, a[2] as f64]).collect();
+    let g: Vec<f64> = if kind == ElementKind::Hex8 { vec![-1.0 / 3f64.sqrt(), 1.0 / 3f64.sqrt()] } else { vec![-(0.6f64).sqrt(), 0.0, 0.6f64.sqrt()] };
     for &a in &g {
         for &b in &g {
             for &c in &g {
@@ -542,12 +499,7 @@ pub fn element_scaled_jacobians(mesh: &Mesh) -> Vec<f64> {
 pub fn mesh_quality(mesh: &Mesh) -> Result<MeshQuality, MeshError> {
     let per = element_jacobian_extremes(mesh);
     let npts = quality_points(mesh.kind).len();
-    let mut q = MeshQuality {
-        min_scaled_jacobian: f64::INFINITY,
-        worst_element: 0,
-        min_det_jacobian: f64::INFINITY,
-        points_checked: per.len() * npts,
-    };
+    let mut q = MeshQuality { min_scaled_jacobian: f64::INFINITY, worst_element: 0, min_det_jacobian: f64::INFINITY, points_checked: per.len() * npts };
     for (e, &(sj, det, at)) in per.iter().enumerate() {
         if !(det > 0.0) || !(sj > 0.0) {
             return Err(MeshError::Inverted { element: e, det, at });
@@ -619,13 +571,7 @@ mod tests {
     #[test]
     fn inverted_element_is_an_error() {
         let coords: Vec<[f64; 3]> = HEX27_NATURAL[..8].iter().map(|n| [n[0] as f64, n[1] as f64, -(n[2] as f64)]).collect();
-        let mesh = Mesh {
-            nodes: coords,
-            kind: ElementKind::Hex8,
-            connectivity: (0..8).collect(),
-            node_sets: BTreeMap::new(),
-            face_sets: BTreeMap::new(),
-        };
+        let mesh = Mesh { nodes: coords, kind: ElementKind::Hex8, connectivity: (0..8).collect(), node_sets: BTreeMap::new(), face_sets: BTreeMap::new() };
         let e = mesh_quality(&mesh).unwrap_err();
         assert!(matches!(e, MeshError::Inverted { element: 0, .. }), "{e}");
         let mut ok = mesh.clone();

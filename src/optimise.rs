@@ -308,10 +308,7 @@ impl OptProblem {
             ev.time_s = t0.elapsed().as_secs_f64();
             ev
         };
-        let d = crate::geometry::Design {
-            values: design.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect(),
-            variant: self.variant,
-        };
+        let d = crate::geometry::Design { values: design.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect(), variant: self.variant };
         let geom = match ActuatorGeometry::new(&d, self.policy) {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("invalid-geometry: {e}")),
@@ -414,7 +411,10 @@ impl OptProblem {
             }
         }
         if !all_ok {
-            ev.status = format!("failed-before-p: {}", dg.scenes.values().filter(|s| s.status != SceneStatus::Converged).map(|s| format!("{} {} at {:.3} kPa", s.scene, s.status, s.p_kpa)).collect::<Vec<_>>().join(", "));
+            ev.status = format!(
+                "failed-before-p: {}",
+                dg.scenes.values().filter(|s| s.status != SceneStatus::Converged).map(|s| format!("{} {} at {:.3} kPa", s.scene, s.status, s.p_kpa)).collect::<Vec<_>>().join(", ")
+            );
             // no objective at p: the optimiser sees the last good point's (the module docs)
             match last_good {
                 Some(lg) => {
@@ -508,12 +508,7 @@ impl<'a> Session<'a> {
 
     /// Index of the best feasible evaluation.
     pub fn best(&self) -> Option<usize> {
-        self.evaluations
-            .iter()
-            .enumerate()
-            .filter(|(_, e)| e.feasible)
-            .max_by(|a, b| a.1.objective.total_cmp(&b.1.objective))
-            .map(|(i, _)| i)
+        self.evaluations.iter().enumerate().filter(|(_, e)| e.feasible).max_by(|a, b| a.1.objective.total_cmp(&b.1.objective)).map(|(i, _)| i)
     }
 }
 
@@ -744,8 +739,7 @@ mod sqp {
                 // predicted reduction of the merit model
                 let lin: Vec<f64> = ev.g.iter().zip(&ev.dg).map(|(g, j)| g + j.iter().zip(&d).map(|(a, b)| a * b).sum::<f64>()).collect();
                 let quad: f64 = 0.5 * (0..n).map(|i| (0..n).map(|j| d[i] * b[i][j] * d[j]).sum::<f64>()).sum::<f64>();
-                let pred = -(ev.df.iter().zip(&d).map(|(a, b)| a * b).sum::<f64>() + quad)
-                    + nu * (ev.g.iter().map(|g| g.max(0.0)).sum::<f64>() - lin.iter().map(|g| g.max(0.0)).sum::<f64>());
+                let pred = -(ev.df.iter().zip(&d).map(|(a, b)| a * b).sum::<f64>() + quad) + nu * (ev.g.iter().map(|g| g.max(0.0)).sum::<f64>() - lin.iter().map(|g| g.max(0.0)).sum::<f64>());
                 let ared = merit(&ev, nu) - merit(&evn, nu);
                 let rho = if pred > 0.0 { ared / pred } else { -1.0 };
                 let failed_eval = evn.status.starts_with("invalid") || evn.status.starts_with("model-error") || evn.status.starts_with("non-finite");
@@ -819,7 +813,9 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
         let rows = interior.len().max(1);
         let a = nalgebra::DMatrix::from_fn(rows, set.len(), |r, c| interior.get(r).map(|&i| ev.dg[set[c]][i]).unwrap_or(0.0));
         let b = nalgebra::DVector::from_fn(rows, |r, _| interior.get(r).map(|&i| -ev.df[i]).unwrap_or(0.0));
-        let Ok(sol) = a.clone().svd(true, true).solve(&b, 1e-12) else { continue };
+        let Ok(sol) = a.clone().svd(true, true).solve(&b, 1e-12) else {
+            continue;
+        };
         if sol.iter().any(|l| *l < 0.0) {
             continue;
         }
@@ -854,13 +850,7 @@ pub fn starting_points(n: usize, count: usize) -> Vec<Vec<f64>> {
 
 /// Run every (optimiser, start) pair in parallel. `progress` is called after each run, and
 /// `each` after each evaluation with the run's name and the evaluation's index.
-pub fn run_all(
-    problem: &OptProblem,
-    optimisers: &[String],
-    starts: &[Vec<f64>],
-    progress: impl Fn(&RunResult) + Sync,
-    each: impl Fn(&str, usize, &Evaluation) + Sync,
-) -> Vec<RunResult> {
+pub fn run_all(problem: &OptProblem, optimisers: &[String], starts: &[Vec<f64>], progress: impl Fn(&RunResult) + Sync, each: impl Fn(&str, usize, &Evaluation) + Sync) -> Vec<RunResult> {
     use rayon::prelude::*;
     let jobs: Vec<(String, usize)> = optimisers.iter().flat_map(|o| (0..starts.len()).map(move |s| (o.clone(), s))).collect();
     let done = Mutex::new(());

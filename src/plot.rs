@@ -65,8 +65,7 @@ static FONT_INIT: Once = Once::new();
 pub(crate) fn register_font() -> Result<()> {
     let mut ok = true;
     FONT_INIT.call_once(|| {
-        ok = plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-            && plotters::style::register_font(FONT, FontStyle::Bold, dejavu::sans::bold()).is_ok();
+        ok = plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok() && plotters::style::register_font(FONT, FontStyle::Bold, dejavu::sans::bold()).is_ok();
     });
     if !ok {
         bail!("plot: the embedded DejaVu Sans font could not be loaded");
@@ -119,13 +118,7 @@ where
     let valid = |r: Option<(f64, f64)>| r.filter(|(a, b)| a.is_finite() && b.is_finite() && b > a);
     let (x0, x1) = valid(plot.x_range).or_else(|| range(pts().map(|p| p.0))).unwrap_or((-1.0, 1.0));
     let (y0, y1) = valid(plot.y_range).or_else(|| range(pts().map(|p| p.1))).unwrap_or((-1.0, 1.0));
-    let mut chart = ChartBuilder::on(&root)
-        .caption(&plot.title, (FONT, 22).into_font())
-        .margin(16)
-        .x_label_area_size(50)
-        .y_label_area_size(80)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(err)?;
+    let mut chart = ChartBuilder::on(&root).caption(&plot.title, (FONT, 22).into_font()).margin(16).x_label_area_size(50).y_label_area_size(80).build_cartesian_2d(x0..x1, y0..y1).map_err(err)?;
     chart
         .configure_mesh()
         .x_desc(plot.x_label.as_str())
@@ -149,11 +142,7 @@ where
         let p: Vec<(f64, f64)> = s.points.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
         let mut legend_done = false;
         if s.line && !p.is_empty() {
-            chart
-                .draw_series(LineSeries::new(p.clone(), c.stroke_width(2)))
-                .map_err(err)?
-                .label(s.name.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+            chart.draw_series(LineSeries::new(p.clone(), c.stroke_width(2))).map_err(err)?.label(s.name.as_str()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
             legend_done = true;
         }
         if s.markers && !p.is_empty() {
@@ -183,12 +172,8 @@ where
 
 /// The corner whose 35 % × 35 % box holds the fewest data points (ties: upper left first).
 fn legend_corner(plot: &LinePlot, (x0, x1): (f64, f64), (y0, y1): (f64, f64)) -> SeriesLabelPosition {
-    let corners = [
-        (SeriesLabelPosition::UpperLeft, false, true),
-        (SeriesLabelPosition::UpperRight, true, true),
-        (SeriesLabelPosition::LowerRight, true, false),
-        (SeriesLabelPosition::LowerLeft, false, false),
-    ];
+    let corners =
+        [(SeriesLabelPosition::UpperLeft, false, true), (SeriesLabelPosition::UpperRight, true, true), (SeriesLabelPosition::LowerRight, true, false), (SeriesLabelPosition::LowerLeft, false, false)];
     let pts: Vec<(f64, f64)> = plot.series.iter().flat_map(|s| s.points.iter().copied()).collect();
     let count = |right: bool, upper: bool| {
         pts.iter()
@@ -243,8 +228,20 @@ pub(crate) fn cell_edges(c: &[f64], default_half: f64) -> Vec<(f64, f64)> {
     let n = c.len();
     (0..n)
         .map(|i| {
-            let lo = if i > 0 { 0.5 * (c[i - 1] + c[i]) } else if n > 1 { c[0] - 0.5 * (c[1] - c[0]) } else { c[0] - default_half };
-            let hi = if i + 1 < n { 0.5 * (c[i] + c[i + 1]) } else if n > 1 { c[n - 1] + 0.5 * (c[n - 1] - c[n - 2]) } else { c[0] + default_half };
+            let lo = if i > 0 {
+                0.5 * (c[i - 1] + c[i])
+            } else if n > 1 {
+                c[0] - 0.5 * (c[1] - c[0])
+            } else {
+                c[0] - default_half
+            };
+            let hi = if i + 1 < n {
+                0.5 * (c[i] + c[i + 1])
+            } else if n > 1 {
+                c[n - 1] + 0.5 * (c[n - 1] - c[n - 2])
+            } else {
+                c[0] + default_half
+            };
             (lo, hi)
         })
         .collect()
@@ -314,15 +311,7 @@ where
         .y_label_area_size(60)
         .build_cartesian_2d(xe[0].0..xe[xe.len() - 1].1, ye[0].0..ye[ye.len() - 1].1)
         .map_err(err)?;
-    chart
-        .configure_mesh()
-        .disable_mesh()
-        .x_desc(m.x_label.as_str())
-        .y_desc(m.y_label.as_str())
-        .label_style((FONT, 14).into_font())
-        .axis_desc_style((FONT, 16).into_font())
-        .draw()
-        .map_err(err)?;
+    chart.configure_mesh().disable_mesh().x_desc(m.x_label.as_str()).y_desc(m.y_label.as_str()).label_style((FONT, 14).into_font()).axis_desc_style((FONT, 16).into_font()).draw().map_err(err)?;
     let mut cells = Vec::new();
     for (iy, row) in m.values.iter().enumerate() {
         for (ix, v) in row.iter().enumerate() {
@@ -336,21 +325,18 @@ where
     chart.draw_series(cells).map_err(err)?;
     for (i, s) in m.paths.iter().enumerate() {
         let c = colour(i + 1);
-        chart.draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2))).map_err(err)?.label(s.name.as_str()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+        chart
+            .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
+            .map_err(err)?
+            .label(s.name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
         chart.draw_series(s.points.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(err)?;
         if let Some(last) = s.points.last() {
             chart.draw_series(std::iter::once(Circle::new(*last, 7, WHITE.stroke_width(2)))).map_err(err)?;
         }
     }
     if !m.paths.is_empty() {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperLeft)
-            .label_font((FONT, 13).into_font())
-            .draw()
-            .map_err(err)?;
+        chart.configure_series_labels().background_style(WHITE.mix(0.85)).border_style(BLACK).position(SeriesLabelPosition::UpperLeft).label_font((FONT, 13).into_font()).draw().map_err(err)?;
     }
     colour_bar(&bar, vmin, vmax, Some(m.value_label.as_str()), (45, 60))?;
     root.present().map_err(err)?;

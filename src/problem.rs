@@ -381,7 +381,9 @@ impl Problem {
             })?
             .into();
         let load = match (&self.load.pressures_kpa, self.load.p_max_kpa) {
-            (Some(_), Some(_)) => bail!("load: give either load.pressures_kPa or load.p_max_kPa, not both"),
+            (Some(_), Some(_)) => {
+                bail!("load: give either load.pressures_kPa or load.p_max_kPa, not both")
+            }
             (None, None) => bail!("load: missing load.pressures_kPa (list of kPa) or load.p_max_kPa (ramp end, kPa)"),
             (Some(list), None) => {
                 if list.is_empty() {
@@ -406,20 +408,14 @@ impl Problem {
         }
         let mut scenes = Vec::new();
         for name in &s.run {
-            let k = SceneKind::parse(name).ok_or_else(|| {
-                anyhow!("scenes.run: unknown scene '{name}' (expected free, blocked, pure-twist or pure-twist-blocked)")
-            })?;
+            let k = SceneKind::parse(name).ok_or_else(|| anyhow!("scenes.run: unknown scene '{name}' (expected free, blocked, pure-twist or pure-twist-blocked)"))?;
             if scenes.contains(&k) {
                 bail!("scenes.run: scene '{name}' is listed twice");
             }
             scenes.push(k);
         }
         if !(s.ballooning_limit_mm.is_finite() && s.ballooning_limit_mm > crate::geometry::R_TUBE) {
-            bail!(
-                "scenes.ballooning_limit_mm = {} must be finite and larger than the undeformed radius {} mm",
-                s.ballooning_limit_mm,
-                crate::geometry::R_TUBE
-            );
+            bail!("scenes.ballooning_limit_mm = {} must be finite and larger than the undeformed radius {} mm", s.ballooning_limit_mm, crate::geometry::R_TUBE);
         }
         if let Some(tr) = &self.torque_rotation {
             if tr.pressures_kpa.is_empty() {
@@ -438,7 +434,9 @@ impl Problem {
         }
         let f = &self.fidelity;
         let mesh = match (&f.preset, &f.mesh) {
-            (Some(_), Some(_)) => bail!("fidelity: give either fidelity.preset or fidelity.mesh, not both"),
+            (Some(_), Some(_)) => {
+                bail!("fidelity: give either fidelity.preset or fidelity.mesh, not both")
+            }
             (Some(p), None) => MeshSpec::preset(p).map_err(|e| anyhow!("fidelity.preset: {e}"))?,
             (None, Some(m)) => {
                 if !m.trim().chars().next().is_some_and(|c| c.is_ascii_digit()) {
@@ -551,12 +549,7 @@ fn named(e: &toml::de::Error, text: &str) -> String {
     let line_start = text[..start].rfind('\n').map(|i| i + 1).unwrap_or(0);
     let line_end = text[start..].find('\n').map(|i| start + i).unwrap_or(text.len());
     let line = text[line_start..line_end].trim();
-    let section = text[..line_start]
-        .lines()
-        .rev()
-        .map(str::trim)
-        .find(|l| l.starts_with('[') && l.ends_with(']'))
-        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+    let section = text[..line_start].lines().rev().map(str::trim).find(|l| l.starts_with('[') && l.ends_with(']')).map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
     if line.starts_with('[') {
         // the error is about a whole section (missing field, unknown section)
         let sec = line.trim_matches(|c| c == '[' || c == ']').trim();
@@ -594,12 +587,7 @@ mod tests {
         assert!((p.scenes.ballooning_limit_mm - 28.75).abs() < 1e-12);
         assert_eq!(p.fidelity.preset.as_deref(), Some("default"));
         assert!(p.output.vtu);
-        let p = Problem::from_str_with(
-            BASE,
-            "t",
-            &["design.alpha_deg=120".into(), "load.p_max_kPa=50".into(), "fidelity.preset=coarse".into(), "scenes.run=[\"pure-twist\"]".into()],
-        )
-        .unwrap();
+        let p = Problem::from_str_with(BASE, "t", &["design.alpha_deg=120".into(), "load.p_max_kPa=50".into(), "fidelity.preset=coarse".into(), "scenes.run=[\"pure-twist\"]".into()]).unwrap();
         assert_eq!(p.design.alpha_deg, 120.0);
         assert_eq!(p.load.p_max_kpa, Some(50.0));
         assert_eq!(p.load.pressures_kpa, None);
@@ -629,12 +617,7 @@ mod tests {
         assert!(v.geometry.design.variant.is_spec() && v.geometry.act.profile.gamma.is_none());
         assert!(p.scene_options(&v).cap_load);
         // set: parsed, validated and passed on
-        let p = Problem::from_str_with(
-            BASE,
-            "t",
-            &["design.variant=\"outward+tips-on-r\"".into(), "design.end_tangent_deg=8".into(), "scenes.cap_load=false".into()],
-        )
-        .unwrap();
+        let p = Problem::from_str_with(BASE, "t", &["design.variant=\"outward+tips-on-r\"".into(), "design.end_tangent_deg=8".into(), "scenes.cap_load=false".into()]).unwrap();
         assert_eq!(p.design.variant.name(), "tips-on-r+outward");
         let v = p.validate().unwrap();
         assert_eq!(v.geometry.design.variant, p.design.variant);

@@ -44,21 +44,14 @@ fn bad_input_gives_one_line_errors_naming_the_field() {
 #[test]
 fn geometry_writes_summary_and_exports() {
     let d = out_dir("cli-paper-example");
-    let out = bin()
-        .args(["geometry", "--r", "8.660254037844386", "--l", "10", "--alpha", "60", "--mesh", "coarse"])
-        .arg("--out")
-        .arg(&d)
-        .output()
-        .unwrap();
+    let out = bin().args(["geometry", "--r", "8.660254037844386", "--l", "10", "--alpha", "60", "--mesh", "coarse"]).arg("--out").arg(&d).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     for f in ["summary.json", "mesh.vtu", "outer.stl", "cavity.stl", "mesh.inp"] {
         assert!(d.join(f).metadata().map(|m| m.len() > 0).unwrap_or(false), "{f} missing");
     }
     let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap()).unwrap();
-    for key in [
-        "r_mm", "l_mm", "alpha_deg", "T_mm", "B_mm", "rho_a_mm", "inner_end_area_mm2", "chamber_volume_mm3",
-        "wall_volume_mm3", "outer_volume_mm3", "min_scaled_jacobian", "nodes", "elements",
-    ] {
+    for key in ["r_mm", "l_mm", "alpha_deg", "T_mm", "B_mm", "rho_a_mm", "inner_end_area_mm2", "chamber_volume_mm3", "wall_volume_mm3", "outer_volume_mm3", "min_scaled_jacobian", "nodes", "elements"]
+    {
         assert!(s.get(key).is_some(), "summary.json lacks {key}");
     }
     let f = |k: &str| s[k].as_f64().unwrap();
@@ -84,12 +77,7 @@ fn geometry_writes_summary_and_exports() {
 #[test]
 fn sector_linear_and_extended_range_runs() {
     let d = out_dir("cli-sector");
-    let out = bin()
-        .args(["geometry", "--r", "10", "--l", "12", "--alpha", "-30", "--extended-range", "--sector", "--order", "linear"])
-        .args(["--mesh", "24x8x2", "--out"])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let out = bin().args(["geometry", "--r", "10", "--l", "12", "--alpha", "-30", "--extended-range", "--sector", "--order", "linear"]).args(["--mesh", "24x8x2", "--out"]).arg(&d).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["elements"].as_u64().unwrap(), 8 * 8 * 2);

@@ -39,13 +39,7 @@ fn require_ccx() -> String {
 fn crosscheck_matches_calculix_on_the_coarse_example() {
     require_ccx();
     let d = out_dir("crosscheck-coarse");
-    let out = bin()
-        .arg("crosscheck")
-        .arg(problem())
-        .args(["--twistopt-element", "matched", "--set", "fidelity.preset=coarse", "--set", "load.pressures_kPa=[40]", "--out"])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let out = bin().arg("crosscheck").arg(problem()).args(["--twistopt-element", "matched", "--set", "fidelity.preset=coarse", "--set", "load.pressures_kPa=[40]", "--out"]).arg(&d).output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "crosscheck failed: {}\n{stdout}", String::from_utf8_lossy(&out.stderr));
     println!("{stdout}");
@@ -109,11 +103,7 @@ fn export_writes_a_complete_deck() {
     assert_eq!(inp.matches("*STEP, NLGEOM").count(), 4);
     assert!(inp.contains("CAVITY_S1, P1, 1.000000000000e-2") && inp.contains("CAVITY_S1, P1, -2.000000000000e-2"));
     // cap force p·A at 30 kPa with A (the 12-around mesh's quadratic top edges) within 0.04 % of A_in = 545.92 mm²
-    let cload: Vec<f64> = inp
-        .split("*CLOAD\n")
-        .skip(1)
-        .map(|b| b.lines().next().unwrap().split(',').nth(2).unwrap().trim().parse().unwrap())
-        .collect();
+    let cload: Vec<f64> = inp.split("*CLOAD\n").skip(1).map(|b| b.lines().next().unwrap().split(',').nth(2).unwrap().trim().parse().unwrap()).collect();
     assert_eq!(cload.len(), 4);
     assert!((cload[1] / 0.03 - 545.9245).abs() < 0.2, "{cload:?}");
     // every line of fields fits ccx's 20-character fields

@@ -46,16 +46,7 @@ fn f(v: &Value) -> f64 {
 #[test]
 fn writes_result_tables_plots_and_paraview_series() {
     let d = out_dir("evaluate-example");
-    let out = evaluate(
-        EXAMPLE,
-        &[
-            "fidelity.preset=\"coarse\"",
-            "load.pressures_kPa=[-15,30]",
-            "torque_rotation.pressures_kPa=[30]",
-            "torque_rotation.points=2",
-        ],
-        &d,
-    );
+    let out = evaluate(EXAMPLE, &["fidelity.preset=\"coarse\"", "load.pressures_kPa=[-15,30]", "torque_rotation.pressures_kPa=[30]", "torque_rotation.points=2"], &d);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let r = read_json(&d.join("result.json"));
     for key in ["problem", "design", "mesh", "scenes", "omega_J_m3", "omega", "torque_rotation"] {

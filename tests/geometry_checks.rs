@@ -4,10 +4,7 @@ mod common;
 use common::assert_close;
 use std::f64::consts::PI;
 use twistopt::geometry::scalar::gauss_legendre;
-use twistopt::geometry::{
-    l_min_extended, r_min_extended, Actuator, ActuatorGeometry, Design, GeometryError, RangePolicy, Section,
-    L_TUBE, R_TUBE, T_WALL,
-};
+use twistopt::geometry::{l_min_extended, r_min_extended, Actuator, ActuatorGeometry, Design, GeometryError, RangePolicy, Section, L_TUBE, R_TUBE, T_WALL};
 
 fn r_grid() -> Vec<f64> {
     // Table I grid 5√3 + 0.5k up to 19.66, plus the nominal end 20
@@ -316,10 +313,7 @@ fn design_validation_names_parameter_and_range() {
     assert!(space.design_from_vec(&[1.0]).unwrap_err().to_string().contains("r_mm, l_mm, alpha_deg"));
     // unknown / missing names
     assert!(Design::from_pairs(&[("r_mm", 10.0), ("l_mm", 12.0)]).unwrap_err().to_string().contains("alpha_deg"));
-    assert!(Design::from_pairs(&[("r_mm", 10.0), ("l_mm", 12.0), ("alpha_deg", 90.0), ("h", 1.0)])
-        .unwrap_err()
-        .to_string()
-        .contains("'h'"));
+    assert!(Design::from_pairs(&[("r_mm", 10.0), ("l_mm", 12.0), ("alpha_deg", 90.0), ("h", 1.0)]).unwrap_err().to_string().contains("'h'"));
 }
 
 #[test]

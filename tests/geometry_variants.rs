@@ -10,10 +10,7 @@ use std::path::PathBuf;
 use std::process::Command;
 use twistopt::export::{cavity_surface, outer_surface};
 use twistopt::geometry::volume::{designed_volume, enclosed_volume, end_ring_area};
-use twistopt::geometry::{
-    end_areas, Actuator, ActuatorGeometry, Design, GeometryVariant, OffsetSide, RangePolicy, Section, SectionReading, TwistOrder,
-    L_TUBE, P_END_TANGENT, R_TUBE, T_WALL,
-};
+use twistopt::geometry::{end_areas, Actuator, ActuatorGeometry, Design, GeometryVariant, OffsetSide, RangePolicy, Section, SectionReading, TwistOrder, L_TUBE, P_END_TANGENT, R_TUBE, T_WALL};
 use twistopt::gradient::{scene_gradient, DEFAULT_KS_RHO_PER_MM};
 use twistopt::meshing::{build_mesh, mesh_shape_derivatives, MeshSpec};
 use twistopt::scene::{equilibrium, SceneKind, SceneModel, SceneOptions};
@@ -115,7 +112,9 @@ fn designed_surface_is_g1_in_z_for_every_variant_and_end_tangent() {
     let mut checked = 0;
     for v in GeometryVariant::all() {
         for gamma in [None, Some(-12.0), Some(18.0)] {
-            let Ok(g) = ActuatorGeometry::new(&design(R0, 15.0, 60.0, v, gamma), RangePolicy::TableI) else { continue };
+            let Ok(g) = ActuatorGeometry::new(&design(R0, 15.0, 60.0, v, gamma), RangePolicy::TableI) else {
+                continue;
+            };
             checked += 1;
             let act = g.act;
             let zj = act.profile.z_junction;
@@ -255,7 +254,9 @@ fn no_inverted_elements_over_the_table_one_box() {
 #[test]
 fn shape_derivatives_including_the_end_tangent_match_central_differences() {
     let spec = MeshSpec::preset("coarse").unwrap().with_sector(true);
-    for (v, gamma, l) in [("spec", Some(0.0), 10.0), ("spec", Some(-8.0), 14.0), ("tips-on-r+outward", Some(10.0), 10.0), ("twist-first", Some(0.0), 14.0), ("midpoint-centres+twist-first", None, 16.0)] {
+    for (v, gamma, l) in
+        [("spec", Some(0.0), 10.0), ("spec", Some(-8.0), 14.0), ("tips-on-r+outward", Some(10.0), 10.0), ("twist-first", Some(0.0), 14.0), ("midpoint-centres+twist-first", None, 16.0)]
+    {
         let d0 = design(R0 + 1.0, l, 60.0, variant(v), gamma);
         let g0 = ActuatorGeometry::new(&d0, RangePolicy::TableI).unwrap();
         let ders = mesh_shape_derivatives(&g0, &spec).unwrap();
@@ -424,10 +425,6 @@ fn every_variant_runs_through_evaluate_at_a_low_pressure() {
     // the example problem file parses and runs (coarse, free only, low pressure)
     let ex = concat!(env!("CARGO_MANIFEST_DIR"), "/problems/letter-calibration-example.toml");
     let out = dir.join("example");
-    let o = Command::new(env!("CARGO_BIN_EXE_twistopt"))
-        .args(["evaluate", ex, "--set", "load.pressures_kPa=[10]", "--set", "scenes.run=[\"free\"]", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_twistopt")).args(["evaluate", ex, "--set", "load.pressures_kPa=[10]", "--set", "scenes.run=[\"free\"]", "--out"]).arg(&out).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

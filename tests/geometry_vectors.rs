@@ -24,19 +24,9 @@ fn all_test_vectors_reproduced() {
         let g = ActuatorGeometry::new(&Design::new(r, l, a), RangePolicy::TableI).expect("valid design");
         let s = &g.act.section;
         let sec = &d["section"];
-        for (key, val) in [
-            ("u", s.u),
-            ("theta_L", s.theta_l),
-            ("theta_N", s.theta_n),
-            ("x", s.x),
-            ("d", s.d),
-            ("e", s.e),
-            ("T", s.t_max),
-            ("B", s.b_min),
-            ("P", s.perimeter),
-            ("A", s.area),
-            ("phi_J", s.phi_j),
-        ] {
+        for (key, val) in
+            [("u", s.u), ("theta_L", s.theta_l), ("theta_N", s.theta_n), ("x", s.x), ("d", s.d), ("e", s.e), ("T", s.t_max), ("B", s.b_min), ("P", s.perimeter), ("A", s.area), ("phi_J", s.phi_j)]
+        {
             assert_close(val, sec[key].as_f64().unwrap(), TOL, &format!("{tag} section.{key}"));
             checked += 1;
         }
@@ -62,12 +52,7 @@ fn all_test_vectors_reproduced() {
             let n0 = g.act.surface(shat, z).n0;
             for c in 0..3 {
                 assert_close(x[c], pt["point"][c].as_f64().unwrap(), TOL, &format!("{tag} point({shat},{z},{eta})[{c}]"));
-                assert_close(
-                    n0[c],
-                    pt["untwisted_outer_normal"][c].as_f64().unwrap(),
-                    TOL,
-                    &format!("{tag} n0({shat},{z})[{c}]"),
-                );
+                assert_close(n0[c], pt["untwisted_outer_normal"][c].as_f64().unwrap(), TOL, &format!("{tag} n0({shat},{z})[{c}]"));
                 checked += 2;
             }
         }

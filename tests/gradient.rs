@@ -33,10 +33,8 @@ fn check_design(r: f64, l: f64, alpha: f64) {
         }
         let rep = fd_check(&g, &o, kind, &sg, &[1e-4, 1e-5]);
         let worst = max_rel_error(&rep);
-        let detail: Vec<String> = rep
-            .iter()
-            .flat_map(|(f, m)| m.iter().filter(|(_, c)| !(c.rel_error <= 1e-5)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error)))
-            .collect();
+        let detail: Vec<String> =
+            rep.iter().flat_map(|(f, m)| m.iter().filter(|(_, c)| !(c.rel_error <= 1e-5)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error))).collect();
         assert!(worst <= 1e-5, "{kind:?} at ({r}, {l}, {alpha}): max rel error {worst:e}: {detail:?}");
     }
 }
@@ -94,11 +92,8 @@ fn bin() -> Command {
 #[test]
 fn cli_gradient_check_fd() {
     let dir = std::env::temp_dir().join(format!("twistopt-gradient-{}", std::process::id()));
-    let out = bin()
-        .args(["gradient", "problems/paper-example.toml", "--set", "fidelity.preset=coarse", "--pressure", "20", "--check-fd", "--fd-steps", "1e-4,1e-5", "--out"])
-        .arg(&dir)
-        .output()
-        .unwrap();
+    let out =
+        bin().args(["gradient", "problems/paper-example.toml", "--set", "fidelity.preset=coarse", "--pressure", "20", "--check-fd", "--fd-steps", "1e-4,1e-5", "--out"]).arg(&dir).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("gradient.json")).unwrap()).unwrap();
     let worst = doc["max_rel_error"].as_f64().unwrap();

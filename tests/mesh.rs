@@ -230,10 +230,7 @@ fn meshed_chamber_volume_converges_to_closed_form_and_is_alpha_independent() {
     // order for every α, and the Richardson extrapolation of default/fine is the closed form
     for a in [60.0, 150.0, 360.0] {
         let g = geom(R0, 10.0, a);
-        let v: Vec<f64> = ["default", "96x32x3"]
-            .iter()
-            .map(|p| cavity_surface(&build_mesh(&g, &MeshSpec::parse(p).unwrap()).unwrap().mesh).unwrap().volume())
-            .collect();
+        let v: Vec<f64> = ["default", "96x32x3"].iter().map(|p| cavity_surface(&build_mesh(&g, &MeshSpec::parse(p).unwrap()).unwrap().mesh).unwrap().volume()).collect();
         let (e1, e2) = ((v[0] - exact).abs(), (v[1] - exact).abs());
         assert!(e2 < 0.3 * e1, "α = {a}: no second-order convergence ({e1} → {e2})");
         let rich = (4.0 * v[1] - v[0]) / 3.0;

@@ -8,13 +8,7 @@ use std::process::Command;
 fn run_case(name: &str, args: &[&str], rtol: &str) {
     let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
     let _ = std::fs::remove_dir_all(&d);
-    let out = Command::new(env!("CARGO_BIN_EXE_twistopt"))
-        .args(["geometry"])
-        .args(args)
-        .arg("--out")
-        .arg(&d)
-        .output()
-        .expect("run twistopt");
+    let out = Command::new(env!("CARGO_BIN_EXE_twistopt")).args(["geometry"]).args(args).arg("--out").arg(&d).output().expect("run twistopt");
     assert!(out.status.success(), "twistopt failed: {}", String::from_utf8_lossy(&out.stderr));
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/python/check_exports.py");
     let py = Command::new("python3").arg(&script).arg(&d).arg(rtol).output();

@@ -95,7 +95,11 @@ fn default_bulk_modulus_is_high_enough() {
         .map(|&k| {
             let s = run_pressure(&g, &o, k, &[40.0]).unwrap();
             let l = last(&s);
-            if k == SceneKind::Free { l.theta_deg } else { l.tau_nm }
+            if k == SceneKind::Free {
+                l.theta_deg
+            } else {
+                l.tau_nm
+            }
         })
         .collect();
     o.material = NeoHookean::with_ratio(MU_HEICAST_MPA, 10.0 * DEFAULT_KAPPA_OVER_MU).unwrap().into();

@@ -104,13 +104,7 @@ fn killed_resumed_sharded_and_verified() {
         let rad = r["max_radius_mm"].as_f64().unwrap();
         assert!(rad > 19.0 && rad < 28.75, "{rad}");
     }
-    let theta = |a: f64, l: f64| {
-        ra.values()
-            .find(|r| r["design"]["alpha_deg"].as_f64() == Some(a) && r["design"]["l_mm"].as_f64() == Some(l))
-            .and_then(|r| r["theta_max_deg"].as_f64())
-            .unwrap()
-            .abs()
-    };
+    let theta = |a: f64, l: f64| ra.values().find(|r| r["design"]["alpha_deg"].as_f64() == Some(a) && r["design"]["l_mm"].as_f64() == Some(l)).and_then(|r| r["theta_max_deg"].as_f64()).unwrap().abs();
     assert!(theta(60.0, 10.0) < theta(180.0, 10.0) && theta(180.0, 10.0) < theta(300.0, 10.0));
     for f in ["manifest.json", "results.csv", "summary.json", "map_theta.png", "map_tau.svg", "map_omega.png"] {
         assert!(a.join(f).metadata().map(|m| m.len() > 0).unwrap_or(false), "{f} missing");

@@ -10,10 +10,10 @@
 //! to λ_A = 2.5 (past the maximum), P at λ_A = 1.5 and 2.5 vs the compressible reference.
 use std::path::PathBuf;
 use std::time::Instant;
+use twistopt_solver::continuation::{follow, ContinuationOptions, Control, LoadPath, PathEnd};
 use twistopt_solver::element::{Formulation, PressureSpace};
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::model::Loads;
-use twistopt_solver::continuation::{follow, Control, ContinuationOptions, LoadPath, PathEnd};
 use twistopt_solver::solve::NewtonOptions;
 use twistopt_solver::verify::{cook_membrane, inflation_slice, torsion_slice};
 
@@ -124,8 +124,7 @@ fn main() {
     let b2 = shared("benchmarks/b2_cylinder_inflation.json");
     let rows = b2["compressible_reference"]["closed_ends_quad_kappa_over_mu_1000"]["table"].as_array().unwrap().clone();
     let row = |la: f64| rows.iter().find(|r| r["lA"].as_f64() == Some(la)).unwrap();
-    let targets: Vec<(f64, f64, f64)> =
-        [1.5, 2.5].iter().map(|&la| (la, row(la)["lz"].as_f64().unwrap(), row(la)["P_MPa"].as_f64().unwrap())).collect();
+    let targets: Vec<(f64, f64, f64)> = [1.5, 2.5].iter().map(|&la| (la, row(la)["lz"].as_f64().unwrap(), row(la)["P_MPa"].as_f64().unwrap())).collect();
     for (f, meshes) in [(q2p1, vec![(4, 1), (8, 2)]), (q1p0, vec![(8, 2), (16, 4), (32, 8)]), (q2, vec![(8, 2)]), (q1, vec![(16, 4)])] {
         for (nt, nr) in meshes {
             let t = Instant::now();
@@ -149,7 +148,9 @@ fn main() {
                 let res = follow(&lp, &q, lam, 10.0, &[], &[], &o);
                 its += res.stats.newton_iterations;
                 last = res.end.clone();
-                let Some(end) = res.points.last().filter(|_| res.end == PathEnd::Completed) else { break };
+                let Some(end) = res.points.last().filter(|_| res.end == PathEnd::Completed) else {
+                    break;
+                };
                 errs.push(format!("{:+.4} %", 100.0 * (lp.loads(end.lam).pressure / p_ref - 1.0)));
                 q = end.q.clone();
                 lam = end.lam;

@@ -73,11 +73,7 @@ impl State<f64> {
     /// The state of an assembly (same values as [`evaluate`] at its inputs, without re-evaluating
     /// the elements): what the path follower reads its recorded outputs from.
     pub fn from_assembly(model: &Model, a: &crate::model::Assembled) -> State<f64> {
-        let bodies = a
-            .kin
-            .iter()
-            .map(|k| BodyState { c: k.c, psi: k.psi, r: k.r, dr: k.dr })
-            .collect();
+        let bodies = a.kin.iter().map(|k| BodyState { c: k.c, psi: k.psi, r: k.r, dr: k.dr }).collect();
         State { x0: model.mesh.nodes.clone(), u: a.u.clone(), r_full: a.r_full.clone(), r: a.r.clone(), volume: a.volume, gvol_full: Vec::new(), bodies }
     }
 }
@@ -144,11 +140,7 @@ pub fn evaluate<D: Scalar>(model: &Model, inp: &Inputs<D>, loads: &Loads) -> Res
         BodyDof::Free(i) => inp.q[i],
         BodyDof::Presc(s) => inp.presc[s],
     };
-    let bodies: Vec<BodyState<D>> = dofs
-        .body_dofs
-        .iter()
-        .map(|bd| body_state([val(bd[0]), val(bd[1]), val(bd[2])], [val(bd[3]), val(bd[4]), val(bd[5])]))
-        .collect();
+    let bodies: Vec<BodyState<D>> = dofs.body_dofs.iter().map(|bd| body_state([val(bd[0]), val(bd[1]), val(bd[2])], [val(bd[3]), val(bd[4]), val(bd[5])])).collect();
     // displacements
     let mut u = vec![[D::zero(); 3]; nn_total];
     for (n, un) in u.iter_mut().enumerate() {
@@ -447,14 +439,7 @@ fn partial_q(model: &Model, q: &[f64], loads: &Loads, st: &State<f64>, f: &Funct
 /// Values and total derivatives dJ_i/ds_k of `functionals` along `directions` at the equilibrium
 /// q under `loads`; `factor` is the factorisation of the reduced tangent at q (e.g. from
 /// [`crate::solve::newton_factored`] or [`crate::solve::factor_converged`]).
-pub fn sensitivities(
-    model: &Model,
-    q: &[f64],
-    loads: &Loads,
-    factor: &Factor,
-    functionals: &[Functional],
-    directions: &[Direction],
-) -> Result<Sensitivities, AdjointError> {
+pub fn sensitivities(model: &Model, q: &[f64], loads: &Loads, factor: &Factor, functionals: &[Functional], directions: &[Direction]) -> Result<Sensitivities, AdjointError> {
     let inp = Inputs { x0: &model.mesh.nodes, q, pressure: loads.pressure, presc: &loads.presc, params: &model.params };
     let st = evaluate(model, &inp, loads)?;
     let mut evals = 0;
@@ -626,10 +611,7 @@ mod tests {
             ];
             // shape: a smooth bulge; material: μ; a dead-load and a prescribed-value direction
             let bulge: Vec<[f64; 3]> = m.mesh.nodes.iter().map(|x| [0.1 * x[2] * x[0], -0.05 * x[2] * x[2], 0.02 * x[0] * x[1]]).collect();
-            let dirs = vec![
-                Direction { name: "shape".into(), dx0: Some(bulge.clone()), ..Default::default() },
-                Direction { name: "mu".into(), dparams: vec![1.0, 0.0], ..Default::default() },
-            ];
+            let dirs = vec![Direction { name: "shape".into(), dx0: Some(bulge.clone()), ..Default::default() }, Direction { name: "mu".into(), dparams: vec![1.0, 0.0], ..Default::default() }];
             let s = sensitivities(&m, &q, &l, &fac, &functionals, &dirs).unwrap();
             let h = 1e-5;
             for (k, dir) in dirs.iter().enumerate() {
@@ -712,10 +694,7 @@ mod tests {
         let functionals = vec![Functional::BodyDof { body: 0, dof: 2 }, Functional::CavityVolume];
         // a radial bulge that changes the cap area, and the pressure
         let bulge: Vec<[f64; 3]> = m.mesh.nodes.iter().map(|x| [0.03 * x[0] * (1.0 + 0.1 * x[2]), 0.03 * x[1] * (1.0 + 0.1 * x[2]), 0.0]).collect();
-        let dirs = vec![
-            Direction { name: "shape".into(), dx0: Some(bulge.clone()), ..Default::default() },
-            Direction { name: "p".into(), dpressure: 1.0, ..Default::default() },
-        ];
+        let dirs = vec![Direction { name: "shape".into(), dx0: Some(bulge.clone()), ..Default::default() }, Direction { name: "p".into(), dpressure: 1.0, ..Default::default() }];
         let sens = sensitivities(m, &q, &l, &fac, &functionals, &dirs).unwrap();
         let h = 1e-6;
         for (k, dir) in dirs.iter().enumerate() {

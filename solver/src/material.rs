@@ -48,11 +48,7 @@ impl NeoHookean {
             return Err(MaterialError::Invalid { name: "mu", value: mu, why: "shear modulus must be finite and > 0" });
         }
         if !(kappa.is_finite() && kappa >= mu) {
-            return Err(MaterialError::Invalid {
-                name: "kappa",
-                value: kappa,
-                why: "bulk modulus must be finite and >= mu",
-            });
+            return Err(MaterialError::Invalid { name: "kappa", value: kappa, why: "bulk modulus must be finite and >= mu" });
         }
         Ok(NeoHookean { mu, kappa, law: VolumetricLaw::Quadratic })
     }
@@ -109,11 +105,7 @@ impl Hyperelastic for Yeoh {
     }
     fn w_iso<D: Scalar>(&self, p: &[D], i1b: D) -> [D; 3] {
         let x = i1b - 3.0;
-        [
-            p[0] * x + p[1] * x * x + p[2] * x * x * x,
-            p[0] + p[1] * x * 2.0 + p[2] * x * x * 3.0,
-            p[1] * 2.0 + p[2] * x * 6.0,
-        ]
+        [p[0] * x + p[1] * x * x + p[2] * x * x * x, p[0] + p[1] * x * 2.0 + p[2] * x * x * 3.0, p[1] * 2.0 + p[2] * x * 6.0]
     }
     fn u_vol<D: Scalar>(&self, p: &[D], j: D) -> [D; 3] {
         u_law(VolumetricLaw::Quadratic, p[3], j)

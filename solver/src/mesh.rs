@@ -117,14 +117,7 @@ pub enum Side {
 }
 
 impl Side {
-    pub const ALL: [Side; 6] = [
-        Side::XiMinus,
-        Side::XiPlus,
-        Side::EtaMinus,
-        Side::EtaPlus,
-        Side::ZetaMinus,
-        Side::ZetaPlus,
-    ];
+    pub const ALL: [Side; 6] = [Side::XiMinus, Side::XiPlus, Side::EtaMinus, Side::EtaPlus, Side::ZetaMinus, Side::ZetaPlus];
     /// (axis 0..3, sign ±1)
     pub fn axis_sign(self) -> (usize, i8) {
         match self {
@@ -165,17 +158,7 @@ pub fn face_axes(side: Side) -> (usize, usize) {
 }
 
 /// Natural (s, t) coordinates of the 9 face nodes in the order of [`ElementKind::face_nodes`].
-pub const FACE_NATURAL: [[i8; 2]; 9] = [
-    [-1, -1],
-    [1, -1],
-    [1, 1],
-    [-1, 1],
-    [0, -1],
-    [1, 0],
-    [0, 1],
-    [-1, 0],
-    [0, 0],
-];
+pub const FACE_NATURAL: [[i8; 2]; 9] = [[-1, -1], [1, -1], [1, 1], [-1, 1], [0, -1], [1, 0], [0, 1], [-1, 0], [0, 0]];
 
 fn face_nodes27(side: Side) -> [usize; 9] {
     let (axis, sign) = side.axis_sign();
@@ -186,10 +169,7 @@ fn face_nodes27(side: Side) -> [usize; 9] {
         xi[axis] = sign;
         xi[sa] = st[0];
         xi[ta] = st[1];
-        out[slot] = HEX27_NATURAL
-            .iter()
-            .position(|c| *c == xi)
-            .expect("face node exists in the 27-node table");
+        out[slot] = HEX27_NATURAL.iter().position(|c| *c == xi).expect("face node exists in the 27-node table");
     }
     out
 }
@@ -252,13 +232,7 @@ impl Mesh {
                 connectivity.push(map[n]);
             }
         }
-        let node_sets = self
-            .node_sets
-            .iter()
-            .map(|(k, v)| {
-                (k.clone(), v.iter().filter(|&&n| map[n] != usize::MAX).map(|&n| map[n]).collect())
-            })
-            .collect();
+        let node_sets = self.node_sets.iter().map(|(k, v)| (k.clone(), v.iter().filter(|&&n| map[n] != usize::MAX).map(|&n| map[n]).collect())).collect();
         Mesh { nodes, kind, connectivity, node_sets, face_sets: self.face_sets.clone() }
     }
 }

@@ -19,11 +19,7 @@ pub fn structured(kind: ElementKind, nx: usize, ny: usize, nz: usize, map: impl 
         for ej in 0..ny {
             for ei in 0..nx {
                 for c in nat {
-                    let (i, j, k) = (
-                        o * ei + ((c[0] + 1) as usize * o) / 2,
-                        o * ej + ((c[1] + 1) as usize * o) / 2,
-                        o * ek + ((c[2] + 1) as usize * o) / 2,
-                    );
+                    let (i, j, k) = (o * ei + ((c[0] + 1) as usize * o) / 2, o * ej + ((c[1] + 1) as usize * o) / 2, o * ek + ((c[2] + 1) as usize * o) / 2);
                     let l = lattice(i, j, k);
                     if used[l] == usize::MAX {
                         used[l] = nodes.len();

@@ -95,14 +95,16 @@ pub fn hex_shape(kind: ElementKind, xi: [f64; 3]) -> (Vec<f64>, Vec<[f64; 3]>) {
                     let (p, q, r) = (1.0 + a0 * x, 1.0 + a1 * y, 1.0 + a2 * z);
                     let s = a0 * x + a1 * y + a2 * z - 2.0;
                     n[a] = 0.125 * p * q * r * s;
-                    dn[a] = [
-                        0.125 * a0 * q * r * (s + p),
-                        0.125 * a1 * p * r * (s + q),
-                        0.125 * a2 * p * q * (s + r),
-                    ];
+                    dn[a] = [0.125 * a0 * q * r * (s + p), 0.125 * a1 * p * r * (s + q), 0.125 * a2 * p * q * (s + r)];
                 } else {
                     // one natural coordinate is 0 on this edge
-                    let f = |ci: f64, v: f64| if ci == 0.0 { (1.0 - v * v, -2.0 * v) } else { (0.5 * (1.0 + ci * v), 0.5 * ci) };
+                    let f = |ci: f64, v: f64| {
+                        if ci == 0.0 {
+                            (1.0 - v * v, -2.0 * v)
+                        } else {
+                            (0.5 * (1.0 + ci * v), 0.5 * ci)
+                        }
+                    };
                     let (l0, d0) = f(a0, x);
                     let (l1, d1) = f(a1, y);
                     let (l2, d2) = f(a2, z);
@@ -138,7 +140,13 @@ pub fn face_shape(nf: usize, st: [f64; 2]) -> (Vec<f64>, Vec<[f64; 2]>) {
                     n[a] = 0.25 * p * q * s;
                     dn[a] = [0.25 * a0 * q * (s + p), 0.25 * a1 * p * (s + q)];
                 } else {
-                    let f = |ci: f64, v: f64| if ci == 0.0 { (1.0 - v * v, -2.0 * v) } else { (0.5 * (1.0 + ci * v), 0.5 * ci) };
+                    let f = |ci: f64, v: f64| {
+                        if ci == 0.0 {
+                            (1.0 - v * v, -2.0 * v)
+                        } else {
+                            (0.5 * (1.0 + ci * v), 0.5 * ci)
+                        }
+                    };
                     let (l0, d0) = f(a0, x);
                     let (l1, d1) = f(a1, y);
                     n[a] = l0 * l1;

@@ -8,13 +8,13 @@
 //! * B2 closed-end inflation of the 17/20 tube: a quarter slice with symmetry rollers, bottom
 //!   u_z = 0, top u_z tied to one free DOF (see [`inflation_slice`]).
 
+use crate::continuation::{ramp, ContinuationOptions, PathEnd};
 use crate::dofmap::{Constraints, DofSpec, Periodic, RigidBody};
 use crate::element::Formulation;
 use crate::material::NeoHookean;
 use crate::mesh::ElementKind;
 use crate::meshgen;
 use crate::model::{resultant, Loads, Model, ModelError};
-use crate::continuation::{ramp, ContinuationOptions, PathEnd};
 use crate::surface;
 
 /// Shear modulus of Hei-Cast 8400 (MPa).
@@ -25,9 +25,7 @@ pub const TUBE_B: f64 = 20.0;
 
 fn check_slice(n_theta: usize, n_r: usize, h: f64, theta_multiple: usize) -> Result<(), ModelError> {
     if n_theta == 0 || !n_theta.is_multiple_of(theta_multiple) || n_theta > 4096 || n_r == 0 || n_r > 256 || !(h.is_finite() && h > 0.0) {
-        return Err(ModelError::Mesh(format!(
-            "tube slice: {n_theta} elements around (a positive multiple of {theta_multiple}), {n_r} through the wall, height {h}"
-        )));
+        return Err(ModelError::Mesh(format!("tube slice: {n_theta} elements around (a positive multiple of {theta_multiple}), {n_r} through the wall, height {h}")));
     }
     Ok(())
 }
@@ -66,8 +64,7 @@ pub fn cook_membrane(form: Formulation, n: usize, kappa_over_mu: f64, traction: 
     for node in 0..mesh.n_nodes() {
         cons.prescribed.push((node, 2, 0.0));
     }
-    let forces = surface::dead_traction(&mesh, &mesh.face_sets["xmax"], [0.0, traction, 0.0])
-        .ok_or_else(|| ModelError::Mesh("non-finite traction".into()))?;
+    let forces = surface::dead_traction(&mesh, &mesh.face_sets["xmax"], [0.0, traction, 0.0]).ok_or_else(|| ModelError::Mesh("non-finite traction".into()))?;
     let tip = (0..mesh.n_nodes())
         .find(|&i| (mesh.nodes[i][0] - 48.0).abs() < 1e-9 && (mesh.nodes[i][1] - 60.0).abs() < 1e-9 && mesh.nodes[i][2].abs() < 1e-12)
         .ok_or_else(|| ModelError::Mesh("tip node not found".into()))?;
@@ -119,20 +116,11 @@ pub fn torsion_slice(kind: ElementKind, form: Formulation, n_theta: usize, n_r: 
     let mut pairs = Vec::new();
     for &a in &bottom {
         let p = mesh.nodes[a];
-        let b = top
-            .iter()
-            .copied()
-            .find(|&b| (mesh.nodes[b][0] - p[0]).abs() < tol && (mesh.nodes[b][1] - p[1]).abs() < tol)
-            .ok_or_else(|| ModelError::Mesh("unmatched periodic node".into()))?;
+        let b = top.iter().copied().find(|&b| (mesh.nodes[b][0] - p[0]).abs() < tol && (mesh.nodes[b][1] - p[1]).abs() < tol).ok_or_else(|| ModelError::Mesh("unmatched periodic node".into()))?;
         pairs.push((a, b));
     }
-    let find = |x: f64, y: f64| {
-        bottom
-            .iter()
-            .copied()
-            .find(|&n| (mesh.nodes[n][0] - x).abs() < tol && (mesh.nodes[n][1] - y).abs() < tol)
-            .ok_or_else(|| ModelError::Mesh("reference node not found".into()))
-    };
+    let find =
+        |x: f64, y: f64| bottom.iter().copied().find(|&n| (mesh.nodes[n][0] - x).abs() < tol && (mesh.nodes[n][1] - y).abs() < tol).ok_or_else(|| ModelError::Mesh("reference node not found".into()));
     let (n0, n90, n180) = (find(TUBE_A, 0.0)?, find(0.0, TUBE_A)?, find(-TUBE_A, 0.0)?);
     let outer = find(TUBE_B, 0.0)?;
     let mut cons = Constraints::default();
@@ -140,12 +128,7 @@ pub fn torsion_slice(kind: ElementKind, form: Formulation, n_theta: usize, n_r: 
     cons.prescribed.push((n0, 1, 0.0));
     cons.prescribed.push((n90, 0, 0.0));
     cons.prescribed.push((n180, 1, 0.0));
-    cons.periodic.push(Periodic {
-        pairs,
-        angle0: 0.0,
-        twist: 0.0,
-        shift: if free_length { DofSpec::Free } else { DofSpec::Prescribed(0.0) },
-    });
+    cons.periodic.push(Periodic { pairs, angle0: 0.0, twist: 0.0, shift: if free_length { DofSpec::Free } else { DofSpec::Prescribed(0.0) } });
     let mat = NeoHookean::with_ratio(MU, kappa_over_mu).map_err(|e| ModelError::Mesh(e.to_string()))?;
     let model = Model::new(mesh, form, mat.into(), &cons, None)?;
     let twist_slot = model.dofs.periodic_dofs[0].0;
@@ -237,13 +220,7 @@ pub fn inflation_slice(form: Formulation, n_theta: usize, n_r: usize, h: f64, ka
     cons.prescribe_set(&mesh.node_sets["ymin"], &[2], 0.0);
     let top_nodes = mesh.node_sets["ymax"].clone();
     let p0 = DofSpec::Prescribed(0.0);
-    cons.bodies.push(RigidBody {
-        name: "top".into(),
-        reference: [0.0, 0.0, h],
-        nodes: top_nodes.clone(),
-        mask: [false, false, true],
-        dofs: [p0, p0, DofSpec::Free, p0, p0, p0],
-    });
+    cons.bodies.push(RigidBody { name: "top".into(), reference: [0.0, 0.0, h], nodes: top_nodes.clone(), mask: [false, false, true], dofs: [p0, p0, DofSpec::Free, p0, p0, p0] });
     let tol = 1e-9 * TUBE_B;
     let inner = (0..mesh.n_nodes())
         .find(|&n| (mesh.nodes[n][0] - TUBE_A).abs() < tol && mesh.nodes[n][1].abs() < tol && mesh.nodes[n][2].abs() < tol)

@@ -1,10 +1,10 @@
 //! B2 closed-end inflation of the 17/20 tube (free ends, F_red = 0) on a quarter slice
 //! (`verify::inflation_slice`): pressure control up to the limit point, volume control past it.
 mod common;
+use twistopt_solver::continuation::{follow, ramp, ContinuationOptions, Control, LoadPath, PathEnd};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::model::Loads;
-use twistopt_solver::continuation::{follow, ramp, Control, ContinuationOptions, LoadPath, PathEnd};
 use twistopt_solver::verify::{inflation_slice, InflationSlice};
 
 fn slice() -> InflationSlice {
@@ -21,12 +21,7 @@ struct Ref {
 fn reference() -> (Vec<Ref>, f64, f64) {
     let b2 = common::shared("benchmarks/b2_cylinder_inflation.json");
     let c = &b2["compressible_reference"]["closed_ends_quad_kappa_over_mu_1000"];
-    let rows = c["table"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|r| Ref { la: r["lA"].as_f64().unwrap(), lz: r["lz"].as_f64().unwrap(), p: r["P_MPa"].as_f64().unwrap() })
-        .collect();
+    let rows = c["table"].as_array().unwrap().iter().map(|r| Ref { la: r["lA"].as_f64().unwrap(), lz: r["lz"].as_f64().unwrap(), p: r["P_MPa"].as_f64().unwrap() }).collect();
     (rows, c["P_max_MPa"].as_f64().unwrap(), c["lA_at_Pmax"].as_f64().unwrap())
 }
 
@@ -60,7 +55,10 @@ fn b2_pressure_control_up_to_the_limit_point() {
     to.pressure = 0.05;
     let res = ramp(m, &q, &from, &to, &ContinuationOptions::default());
     let last = (res.loads.pressure, s.stretches(res.assembled.as_ref().unwrap()).0);
-    println!("the pressure path ends with {:?} at P = {:.7} (λ_A = {:.4}) after {} steps, {} Newton iterations; P_max = {p_max}", res.end, last.0, last.1, res.stats.steps, res.stats.newton_iterations);
+    println!(
+        "the pressure path ends with {:?} at P = {:.7} (λ_A = {:.4}) after {} steps, {} Newton iterations; P_max = {p_max}",
+        res.end, last.0, last.1, res.stats.steps, res.stats.newton_iterations
+    );
     assert_eq!(res.end, PathEnd::Fold);
     assert_eq!(res.stats.failed_attempts, 0, "{:?}", res.stats);
     // the benchmark's closed-end tolerance: P_max within 0.3 %, λ_A at P_max within 1 %
@@ -78,8 +76,8 @@ fn b2_volume_control_passes_the_maximum() {
     let lp = LoadPath::new(m, Loads::zero(m), to, Vec::new());
     let (mut q, mut lam) = (vec![0.0; m.n_reduced()], 0.0);
     let mut curve: Vec<(f64, f64)> = Vec::new(); // (λ_A, P) at every converged point
-    // prescribe the reference cavity volume π a² λ_z h / 4 of each row, both sides of the
-    // maximum, with 12 intermediate volumes from λ_A = 1.5 to the next row (samples for P_max)
+                                                 // prescribe the reference cavity volume π a² λ_z h / 4 of each row, both sides of the
+                                                 // maximum, with 12 intermediate volumes from λ_A = 1.5 to the next row (samples for P_max)
     let mut targets: Vec<(f64, Option<&Ref>)> = Vec::new();
     for (i, r) in rows.iter().enumerate() {
         targets.push((s.volume_of(r.la, r.lz), Some(r)));

@@ -2,10 +2,10 @@
 //! Newton convergence in a logged solve — all on the helically periodic slice of the tube
 //! (`verify::torsion_slice`: one period of the infinitely long tube, the exact BVP of B3).
 mod common;
+use twistopt_solver::continuation::{ramp, ContinuationOptions, PathEnd};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::mesh::ElementKind;
 use twistopt_solver::model::Loads;
-use twistopt_solver::continuation::{ramp, ContinuationOptions, PathEnd};
 use twistopt_solver::solve::{newton, NewtonOptions};
 use twistopt_solver::verify::{torsion_slice, TorsionSlice};
 
@@ -106,13 +106,7 @@ fn b3_hollow_tube_free_length() {
     // the axial shift of the periodic slice is a free DOF: the axial force vanishes and the tube
     // lengthens (Poynting); compared with the incompressible table (model gap at κ/μ = 1000 ~1e-3)
     let b3 = common::shared("benchmarks/b3_torsion.json");
-    let rows: Vec<_> = b3["hollow_free_length_free_surfaces"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|r| [30.0, 60.0, 90.0].contains(&r["angle_deg"].as_f64().unwrap()))
-        .cloned()
-        .collect();
+    let rows: Vec<_> = b3["hollow_free_length_free_surfaces"].as_array().unwrap().iter().filter(|r| [30.0, 60.0, 90.0].contains(&r["angle_deg"].as_f64().unwrap())).cloned().collect();
     let kind = ElementKind::Hex27;
     let s = torsion_slice(kind, Formulation::standard(kind), 24, 2, 2.0, 1000.0, true).unwrap();
     let (pts, status, _) = s.twist(L, &[30.0, 60.0, 90.0], &axisymmetric());

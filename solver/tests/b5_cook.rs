@@ -1,8 +1,8 @@
 //! B5 Cook's membrane (plane strain, κ/μ = 5000, Hei-Cast scaling): the locking test.
 mod common;
+use twistopt_solver::continuation::PathEnd;
 use twistopt_solver::element::{Formulation, PressureSpace};
 use twistopt_solver::mesh::ElementKind;
-use twistopt_solver::continuation::PathEnd;
 use twistopt_solver::verify::cook_membrane;
 
 #[test]
@@ -19,9 +19,7 @@ fn b5_cook_membrane_mixed_elements_converge_and_q1_locks() {
     let e2 = (q2.uy - uy_ref) / uy_ref;
     assert!(e2.abs() < 0.005, "Q2/P1 16x16: u_y = {} ({:+.3} %)", q2.uy, 100.0 * e2);
     // the reference's own Q2/P1 16 × 16 value (literature set, identical up to scaling)
-    let own16 = b5["literature_set"]["meshes"].as_array().unwrap().iter().find(|m| m["n_elements_per_side"] == 16).unwrap()["tip_uy_mm"]["1.0"]
-        .as_f64()
-        .unwrap();
+    let own16 = b5["literature_set"]["meshes"].as_array().unwrap().iter().find(|m| m["n_elements_per_side"] == 16).unwrap()["tip_uy_mm"]["1.0"].as_f64().unwrap();
     assert!((q2.uy - own16).abs() < 1e-3 * own16, "Q2/P1 16x16 {} vs the reference code's 16x16 {own16}", q2.uy);
 
     // Q1/P0 (Hex8 mean dilatation), 32 × 32: within 1.5 %

@@ -70,23 +70,11 @@ impl TwistoptElement {
 
 /// Run one scene with both codes. ccx runs in `dir/<scene>/` with `threads` OpenMP threads.
 #[allow(clippy::too_many_arguments)]
-pub fn check_scene(
-    problem: &Problem,
-    v: &Validated,
-    scene: SceneKind,
-    deck_opts: &DeckOptions,
-    twistopt_element: TwistoptElement,
-    ccx: &str,
-    dir: &Path,
-    threads: usize,
-) -> Result<SceneCheck> {
+pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts: &DeckOptions, twistopt_element: TwistoptElement, ccx: &str, dir: &Path, threads: usize) -> Result<SceneCheck> {
     let mut opts = problem.scene_options(v);
     opts.keep_fields = false;
     if twistopt_element == TwistoptElement::Matched {
-        opts.formulation = deck_opts
-            .element
-            .matched_formulation()
-            .ok_or_else(|| anyhow::anyhow!("twistopt has no formulation matching {} (use C3D20R or C3D20)", deck_opts.element.name()))?;
+        opts.formulation = deck_opts.element.matched_formulation().ok_or_else(|| anyhow::anyhow!("twistopt has no formulation matching {} (use C3D20R or C3D20)", deck_opts.element.name()))?;
     }
     let targets = v.load.targets();
     let mut tw = match run_pressure(&v.geometry, &opts, scene, &targets) {
@@ -110,15 +98,7 @@ pub fn check_scene(
 
 /// Run the scenes with both codes and write `out/crosscheck.json`; returns its content.
 /// `log` receives progress and the side-by-side table.
-pub fn crosscheck(
-    problem: &Problem,
-    scenes: &[SceneKind],
-    deck_opts: &DeckOptions,
-    twistopt_element: TwistoptElement,
-    ccx: &str,
-    out: &Path,
-    log: impl Fn(&str),
-) -> Result<Value> {
+pub fn crosscheck(problem: &Problem, scenes: &[SceneKind], deck_opts: &DeckOptions, twistopt_element: TwistoptElement, ccx: &str, out: &Path, log: impl Fn(&str)) -> Result<Value> {
     let v = problem.validate()?;
     let version = ccx_version(ccx)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create output directory {}", out.display()))?;

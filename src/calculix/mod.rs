@@ -179,14 +179,7 @@ pub fn cap_area(mesh: &Mesh) -> Result<f64> {
 
 /// Build the deck of one scene. `mesh_spec` is the problem's mesh (Hex27 in twistopt); the deck
 /// always models the full 360° actuator.
-pub fn build_deck(
-    geom: &ActuatorGeometry,
-    mesh_spec: &MeshSpec,
-    material: &Material,
-    scene: SceneKind,
-    pressures_kpa: &[f64],
-    opts: &DeckOptions,
-) -> Result<Deck> {
+pub fn build_deck(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Material, scene: SceneKind, pressures_kpa: &[f64], opts: &DeckOptions) -> Result<Deck> {
     let schedule = step_schedule(pressures_kpa);
     if schedule.is_empty() {
         bail!("no non-zero pressure to apply");
@@ -198,7 +191,9 @@ pub fn build_deck(
             }
             (nh.mu, nh.kappa)
         }
-        other => bail!("only the Neo-Hookean material has a CalculiX counterpart here (got {other:?})"),
+        other => {
+            bail!("only the Neo-Hookean material has a CalculiX counterpart here (got {other:?})")
+        }
     };
     // the twistopt mesh (Hex27 by default) on the full 360°, then its CalculiX element kind
     let spec = mesh_spec.with_sector(false);
@@ -260,9 +255,12 @@ pub fn build_deck(
     let _ = writeln!(w, "*SOLID SECTION, ELSET=EALL, MATERIAL=SILICONE");
     let _ = writeln!(w, "*RIGID BODY, NSET=TOP, REF NODE={ref_node}, ROT NODE={rot_node}");
     let _ = writeln!(w, "*BOUNDARY\nBOTTOM, 1, 3");
-    let _ = writeln!(w, "** cap: lateral translations and tilts held; axial translation {}, rotation about z {}",
+    let _ = writeln!(
+        w,
+        "** cap: lateral translations and tilts held; axial translation {}, rotation about z {}",
         if scene.axial_free() { "free" } else { "held" },
-        if scene.rotation_free() { "free" } else { "held" });
+        if scene.rotation_free() { "free" } else { "held" }
+    );
     let _ = writeln!(w, "{ref_node}, 1, 2");
     if !scene.axial_free() {
         let _ = writeln!(w, "{ref_node}, 3, 3");
@@ -298,17 +296,7 @@ pub fn build_deck(
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_OUTER}\nU");
         let _ = writeln!(w, "*END STEP");
     }
-    Ok(Deck {
-        text: s,
-        scene,
-        element: opts.element,
-        mesh,
-        ref_node,
-        rot_node,
-        probe_node: probe + 1,
-        cap_area_mm2,
-        step_pressures_kpa: schedule,
-    })
+    Ok(Deck { text: s, scene, element: opts.element, mesh, ref_node, rot_node, probe_node: probe + 1, cap_area_mm2, step_pressures_kpa: schedule })
 }
 
 /// One state read back from ccx at the end of a step.
@@ -415,13 +403,9 @@ pub fn states_at_step_ends(deck: &Deck, blocks: &[dat::Block]) -> Vec<CcxState> 
     for (k, &p) in deck.step_pressures_kpa.iter().enumerate() {
         let t = (k + 1) as f64;
         let find = |what: &str, set: &str| blocks.iter().find(|b| b.what == what && b.set == set && (b.time - t).abs() < 1e-6);
-        let (Some(uref), Some(urot), Some(rrot), Some(uprobe), Some(uouter)) = (
-            find("displacements", SET_REF),
-            find("displacements", SET_ROT),
-            find("forces", SET_ROT),
-            find("displacements", SET_PROBE),
-            find("displacements", SET_OUTER),
-        ) else {
+        let (Some(uref), Some(urot), Some(rrot), Some(uprobe), Some(uouter)) =
+            (find("displacements", SET_REF), find("displacements", SET_ROT), find("forces", SET_ROT), find("displacements", SET_PROBE), find("displacements", SET_OUTER))
+        else {
             break;
         };
         let get = |b: &dat::Block, node: usize| b.values.iter().find(|(n, _)| *n == node).map(|(_, v)| *v);

@@ -54,10 +54,7 @@ pub fn run(args: &CrosscheckArgs) -> Result<()> {
     let scenes: Vec<SceneKind> = if args.scene.is_empty() {
         problem.validate()?.scenes
     } else {
-        args.scene
-            .iter()
-            .map(|s| SceneKind::parse(s).ok_or_else(|| anyhow!("--scene: unknown scene '{s}' (expected free, blocked, pure-twist or pure-twist-blocked)")))
-            .collect::<Result<_>>()?
+        args.scene.iter().map(|s| SceneKind::parse(s).ok_or_else(|| anyhow!("--scene: unknown scene '{s}' (expected free, blocked, pure-twist or pure-twist-blocked)"))).collect::<Result<_>>()?
     };
     let ccx = args.ccx.clone().unwrap_or_else(ccx_command);
     let opts = DeckOptions { element, cap_load: problem.scenes.cap_load, ..DeckOptions::default() };

@@ -41,7 +41,9 @@ pub fn run(args: &EvaluateArgs) -> Result<()> {
         if let Some(v) = r.get(key) {
             match v.as_f64() {
                 Some(x) => println!("energy density ({what}): {x:.3} J/m3"),
-                None => println!("energy density ({what}): not available (no common positive pressure)"),
+                None => {
+                    println!("energy density ({what}): not available (no common positive pressure)")
+                }
             }
         }
     }

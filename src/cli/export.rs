@@ -36,8 +36,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
     if args.format != "inp" {
         bail!("--format '{}' is not supported (expected inp)", args.format);
     }
-    let scene = SceneKind::parse(&args.scene)
-        .ok_or_else(|| anyhow!("--scene: unknown scene '{}' (expected free, blocked, pure-twist or pure-twist-blocked)", args.scene))?;
+    let scene = SceneKind::parse(&args.scene).ok_or_else(|| anyhow!("--scene: unknown scene '{}' (expected free, blocked, pure-twist or pure-twist-blocked)", args.scene))?;
     let element = CcxElement::parse(&args.element).map_err(|e| anyhow!("--element: {e}"))?;
     let problem = Problem::load(&args.problem, &args.set)?;
     let v = problem.validate()?;

@@ -77,10 +77,7 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
         Order::Linear => ElementKind::Hex8,
         Order::Quadratic => ElementKind::Hex27,
     };
-    let spec = MeshSpec::parse(&args.mesh)?
-        .with_kind(kind)
-        .with_sector(args.sector)
-        .with_arc_aligned(!args.uniform_around);
+    let spec = MeshSpec::parse(&args.mesh)?.with_kind(kind).with_sector(args.sector).with_arc_aligned(!args.uniform_around);
     let t0 = std::time::Instant::now();
     let am = build_mesh(&geom, &spec)?;
     let mesh_seconds = t0.elapsed().as_secs_f64();
@@ -92,22 +89,13 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create output directory {}", dir.display()))?;
     // point data: shape derivatives dX/dp for every design parameter; cell data: quality
     let ders = mesh_shape_derivatives(&geom, &spec)?;
-    let flat: Vec<(String, Vec<f64>)> =
-        ders.iter().map(|(n, d)| (format!("dX_d{n}"), d.iter().flatten().copied().collect())).collect();
+    let flat: Vec<(String, Vec<f64>)> = ders.iter().map(|(n, d)| (format!("dX_d{n}"), d.iter().flatten().copied().collect())).collect();
     let point_data: Vec<DataArray<'_>> = flat.iter().map(|(n, v)| DataArray::new(n, 3, v)).collect();
     let sj = element_scaled_jacobians(&am.mesh);
     write_vtu(&dir.join("mesh.vtu"), &am.mesh, &point_data, &[DataArray::new("min_scaled_jacobian", 1, &sj)])?;
     write_stl_binary(&dir.join("outer.stl"), &outer, "outer")?;
     write_stl_binary(&dir.join("cavity.stl"), &cavity, "cavity")?;
-    let mut heading = format!(
-        "twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}",
-        args.r,
-        args.l,
-        args.alpha,
-        spec.size_string(),
-        spec.kind,
-        if spec.sector { " sector" } else { "" }
-    );
+    let mut heading = format!("twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}", args.r, args.l, args.alpha, spec.size_string(), spec.kind, if spec.sector { " sector" } else { "" });
     if !variant.is_spec() {
         heading.push_str(&format!(" variant={variant}"));
     }
@@ -150,12 +138,8 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     m.insert("meshed_chamber_volume_mm3".into(), json!(cavity.volume()));
     m.insert("outer_stl_triangles".into(), json!(outer.triangles.len()));
     m.insert("cavity_stl_triangles".into(), json!(cavity.triangles.len()));
-    m.insert(
-        "files".into(),
-        json!(["summary.json", "mesh.vtu", "outer.stl", "cavity.stl", "mesh.inp"]),
-    );
-    std::fs::write(dir.join("summary.json"), serde_json::to_string_pretty(&v)? + "\n")
-        .with_context(|| format!("cannot write {}", dir.join("summary.json").display()))?;
+    m.insert("files".into(), json!(["summary.json", "mesh.vtu", "outer.stl", "cavity.stl", "mesh.inp"]));
+    std::fs::write(dir.join("summary.json"), serde_json::to_string_pretty(&v)? + "\n").with_context(|| format!("cannot write {}", dir.join("summary.json").display()))?;
     Ok(v)
 }
 

@@ -6,10 +6,10 @@ use clap::{Parser, Subcommand};
 
 pub mod crosscheck;
 pub mod evaluate;
-pub mod gradient;
-pub mod optimise;
 pub mod export;
 pub mod geometry;
+pub mod gradient;
+pub mod optimise;
 pub mod sweep;
 pub mod verify;
 

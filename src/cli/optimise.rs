@@ -64,42 +64,48 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     let evals_path = args.out.join("evaluations.jsonl");
     // a new optimisation starts a new log (history.json and best.json are rewritten as well)
     let _ = std::fs::remove_file(&evals_path);
-    let runs = run_all(&op, &sec.optimisers, &starts, |r| {
-        if let Ok(mut f) = finished.lock() {
-            f.push(r.clone());
-            if let Err(e) = write_results(&args.out, &op, &v, &f, t0.elapsed().as_secs_f64()) {
-                eprintln!("warning: could not write intermediate results: {e:#}");
+    let runs = run_all(
+        &op,
+        &sec.optimisers,
+        &starts,
+        |r| {
+            if let Ok(mut f) = finished.lock() {
+                f.push(r.clone());
+                if let Err(e) = write_results(&args.out, &op, &v, &f, t0.elapsed().as_secs_f64()) {
+                    eprintln!("warning: could not write intermediate results: {e:#}");
+                }
             }
-        }
-        let b = r.best.map(|i| &r.evaluations[i]);
-        println!(
-            "  {} start {}: {} after {} evaluations in {:.1} s; best {}",
-            r.optimiser,
-            r.start,
-            r.status,
-            r.evaluations.len(),
-            r.wall_time_s,
-            b.map(|e| format!("{:.4} at {}", e.objective, fmt_design(&e.design))).unwrap_or_else(|| "none feasible".into())
-        );
-    }, |run, k, e| {
-        eprintln!(
-            "  [{run}] evaluation {k}: objective {:.4}{} at {} ({} Newton iterations, {:.1} s{})",
-            e.objective,
-            if e.feasible { "" } else { " (infeasible)" },
-            fmt_design(&e.design),
-            e.newton_iterations,
-            e.time_s,
-            if e.status == "ok" { String::new() } else { format!(", {}", e.status) }
-        );
-        // every evaluation also goes to evaluations.jsonl at once, so an interrupted optimisation
-        // keeps the evaluations of its unfinished runs (history.json holds finished runs)
-        let mut j = serde_json::to_value(e).unwrap_or(Value::Null);
-        j["run"] = json!(run);
-        j["evaluation"] = json!(k);
-        if let Err(err) = crate::evaluate::append_json_line(&evals_path, &j) {
-            eprintln!("warning: could not append to {}: {err:#}", evals_path.display());
-        }
-    });
+            let b = r.best.map(|i| &r.evaluations[i]);
+            println!(
+                "  {} start {}: {} after {} evaluations in {:.1} s; best {}",
+                r.optimiser,
+                r.start,
+                r.status,
+                r.evaluations.len(),
+                r.wall_time_s,
+                b.map(|e| format!("{:.4} at {}", e.objective, fmt_design(&e.design))).unwrap_or_else(|| "none feasible".into())
+            );
+        },
+        |run, k, e| {
+            eprintln!(
+                "  [{run}] evaluation {k}: objective {:.4}{} at {} ({} Newton iterations, {:.1} s{})",
+                e.objective,
+                if e.feasible { "" } else { " (infeasible)" },
+                fmt_design(&e.design),
+                e.newton_iterations,
+                e.time_s,
+                if e.status == "ok" { String::new() } else { format!(", {}", e.status) }
+            );
+            // every evaluation also goes to evaluations.jsonl at once, so an interrupted optimisation
+            // keeps the evaluations of its unfinished runs (history.json holds finished runs)
+            let mut j = serde_json::to_value(e).unwrap_or(Value::Null);
+            j["run"] = json!(run);
+            j["evaluation"] = json!(k);
+            if let Err(err) = crate::evaluate::append_json_line(&evals_path, &j) {
+                eprintln!("warning: could not append to {}: {err:#}", evals_path.display());
+            }
+        },
+    );
     let unit = op.objective.reference().1;
     let best = write_results(&args.out, &op, &v, &runs, t0.elapsed().as_secs_f64())?;
     println!("best: {}", serde_json::to_string(&best["summary"]).unwrap_or_default());

@@ -70,15 +70,7 @@ pub fn config(args: &SweepArgs) -> Result<SweepConfig> {
 pub fn run(args: &SweepArgs) -> Result<()> {
     let cfg = config(args)?;
     if args.count {
-        println!(
-            "grid {}: {} designs ({}); shard {}/{}: {} designs",
-            cfg.grid.name,
-            cfg.grid.len(),
-            cfg.grid.shape(),
-            cfg.shard.index,
-            cfg.shard.count,
-            cfg.shard.size(cfg.grid.len())
-        );
+        println!("grid {}: {} designs ({}); shard {}/{}: {} designs", cfg.grid.name, cfg.grid.len(), cfg.grid.shape(), cfg.shard.index, cfg.shard.count, cfg.shard.size(cfg.grid.len()));
         for a in &cfg.grid.axes {
             let (lo, hi) = a.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
             println!("  {}: {} values from {lo} to {hi}", a.name, a.values.len());

@@ -28,7 +28,7 @@ pub fn inp_string_with_type(mesh: &Mesh, heading: &str, element_type: Option<&st
     s.push_str("*NODE, NSET=NALL\n");
     for (i, p) in mesh.nodes.iter().enumerate() {
         // CalculiX reads at most 20 characters per field: 13 significant digits fit
-    let _ = writeln!(s, "{}, {:.12e}, {:.12e}, {:.12e}", i + 1, p[0], p[1], p[2]);
+        let _ = writeln!(s, "{}, {:.12e}, {:.12e}, {:.12e}", i + 1, p[0], p[1], p[2]);
     }
     let _ = writeln!(s, "*ELEMENT, TYPE={}, ELSET=EALL", element_type.unwrap_or(mesh.kind.abaqus_name()));
     for e in 0..mesh.n_elements() {

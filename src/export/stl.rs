@@ -34,9 +34,7 @@ impl ClosedSurface {
             .iter()
             .map(|t| {
                 let [a, b, c] = [self.vertices[t[0]], self.vertices[t[1]], self.vertices[t[2]]];
-                (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-                    + a[2] * (b[0] * c[1] - b[1] * c[0]))
-                    / 6.0
+                (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])) / 6.0
             })
             .sum()
     }
@@ -51,10 +49,7 @@ impl ClosedSurface {
                 *count.entry((a, b)).or_default() += 1;
             }
         }
-        count
-            .iter()
-            .filter(|(&(a, b), &c)| c != 1 || count.get(&(b, a)).copied().unwrap_or(0) != 1)
-            .count()
+        count.iter().filter(|(&(a, b), &c)| c != 1 || count.get(&(b, a)).copied().unwrap_or(0) != 1).count()
     }
 }
 
@@ -81,12 +76,7 @@ fn face_triangles(mesh: &Mesh, face_nodes: &[usize], extra: &mut Vec<[f64; 3]>) 
                 extra.push(p);
                 mesh.nodes.len() + extra.len() - 1
             };
-            let quads = [
-                [c[0], m[0], centre, m[3]],
-                [m[0], c[1], m[1], centre],
-                [centre, m[1], c[2], m[2]],
-                [m[3], centre, m[2], c[3]],
-            ];
+            let quads = [[c[0], m[0], centre, m[3]], [m[0], c[1], m[1], centre], [centre, m[1], c[2], m[2]], [m[3], centre, m[2], c[3]]];
             quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect()
         }
         n => panic!("unexpected face with {n} nodes"),
@@ -109,7 +99,13 @@ fn closed_surface_from_faces(mesh: &Mesh, set: &str, reverse: bool) -> Result<Cl
     // compact vertex numbering
     let mut map: HashMap<usize, usize> = HashMap::new();
     let mut vertices = Vec::new();
-    let get = |i: usize| if i < mesh.nodes.len() { mesh.nodes[i] } else { extra[i - mesh.nodes.len()] };
+    let get = |i: usize| {
+        if i < mesh.nodes.len() {
+            mesh.nodes[i]
+        } else {
+            extra[i - mesh.nodes.len()]
+        }
+    };
     let mut triangles: Vec<[usize; 3]> = tris
         .iter()
         .map(|t| {

@@ -23,23 +23,12 @@ impl<'a> DataArray<'a> {
 
 fn push_array(out: &mut String, a: &DataArray<'_>, count: usize, what: &str) -> Result<()> {
     if a.ncomp == 0 || a.values.len() != a.ncomp * count {
-        bail!(
-            "{what} array '{}' has {} values; expected {} components × {count} = {}",
-            a.name,
-            a.values.len(),
-            a.ncomp,
-            a.ncomp * count
-        );
+        bail!("{what} array '{}' has {} values; expected {} components × {count} = {}", a.name, a.values.len(), a.ncomp, a.ncomp * count);
     }
     if let Some(v) = a.values.iter().find(|v| !v.is_finite()) {
         bail!("{what} array '{}' contains a non-finite value ({v})", a.name);
     }
-    let _ = writeln!(
-        out,
-        "        <DataArray type=\"Float64\" Name=\"{}\" NumberOfComponents=\"{}\" format=\"ascii\">",
-        xml_escape(a.name),
-        a.ncomp
-    );
+    let _ = writeln!(out, "        <DataArray type=\"Float64\" Name=\"{}\" NumberOfComponents=\"{}\" format=\"ascii\">", xml_escape(a.name), a.ncomp);
     for chunk in a.values.chunks(a.ncomp.max(1) * 4) {
         out.push_str("          ");
         for v in chunk {

@@ -64,27 +64,9 @@ impl DesignSpace {
     pub fn actuator() -> Self {
         DesignSpace {
             params: vec![
-                ParamSpec {
-                    name: P_R.into(),
-                    unit: "mm".into(),
-                    description: "arc radius of the horseshoe section (construction frame)".into(),
-                    min: 5.0 * 3f64.sqrt(),
-                    max: 20.0,
-                },
-                ParamSpec {
-                    name: P_L.into(),
-                    unit: "mm".into(),
-                    description: "minimal lateral radius of the bellows profile (waist)".into(),
-                    min: 10.0,
-                    max: 20.0,
-                },
-                ParamSpec {
-                    name: P_ALPHA.into(),
-                    unit: "deg".into(),
-                    description: "pre-twist of the top face relative to the bottom face".into(),
-                    min: 60.0,
-                    max: 360.0,
-                },
+                ParamSpec { name: P_R.into(), unit: "mm".into(), description: "arc radius of the horseshoe section (construction frame)".into(), min: 5.0 * 3f64.sqrt(), max: 20.0 },
+                ParamSpec { name: P_L.into(), unit: "mm".into(), description: "minimal lateral radius of the bellows profile (waist)".into(), min: 10.0, max: 20.0 },
+                ParamSpec { name: P_ALPHA.into(), unit: "deg".into(), description: "pre-twist of the top face relative to the bottom face".into(), min: 60.0, max: 360.0 },
             ],
         }
     }
@@ -128,12 +110,7 @@ impl DesignSpace {
     /// Design from a vector of values in the order of `params` (for optimisers).
     pub fn design_from_vec(&self, x: &[f64]) -> Result<Design, GeometryError> {
         if x.len() != self.params.len() {
-            return Err(GeometryError::Invalid(format!(
-                "design vector has {} entries; the design space has {} ({})",
-                x.len(),
-                self.params.len(),
-                self.names().join(", ")
-            )));
+            return Err(GeometryError::Invalid(format!("design vector has {} entries; the design space has {} ({})", x.len(), self.params.len(), self.names().join(", "))));
         }
         Ok(Design { values: self.params.iter().zip(x).map(|(p, v)| (p.name.clone(), *v)).collect(), variant: GeometryVariant::default() })
     }
@@ -164,7 +141,11 @@ pub enum GeometryError {
 fn range_text(lo: f64, hi: f64, unit: &str) -> String {
     let f = |x: f64| {
         if x.is_infinite() {
-            if x > 0.0 { "+inf".to_string() } else { "-inf".to_string() }
+            if x > 0.0 {
+                "+inf".to_string()
+            } else {
+                "-inf".to_string()
+            }
         } else {
             let s = format!("{x:.6}");
             let s = s.trim_end_matches('0').trim_end_matches('.').to_string();
@@ -341,10 +322,7 @@ impl Design {
     /// be set on a design that does not carry it yet).
     pub fn with(&self, name: &str, value: f64) -> Result<Self, GeometryError> {
         if !self.values.contains_key(name) && DesignSpace::optional().get(name).is_none() {
-            return Err(GeometryError::UnknownParameter {
-                name: name.to_string(),
-                known: self.values.keys().cloned().collect::<Vec<_>>().join(", "),
-            });
+            return Err(GeometryError::UnknownParameter { name: name.to_string(), known: self.values.keys().cloned().collect::<Vec<_>>().join(", ") });
         }
         let mut d = self.clone();
         d.values.insert(name.to_string(), value);
@@ -380,12 +358,7 @@ impl Design {
             }
             let tol = 1e-9 * p.max;
             if r < p.min - tol || r > p.max + tol {
-                return Err(GeometryError::OutOfRange {
-                    name: P_R.into(),
-                    value: r,
-                    range,
-                    hint: format!(" (extended range with geometry variant '{}': r keeps the Table-I range)", self.variant),
-                });
+                return Err(GeometryError::OutOfRange { name: P_R.into(), value: r, range, hint: format!(" (extended range with geometry variant '{}': r keeps the Table-I range)", self.variant) });
             }
             let l = self.get(P_L)?;
             let a = self.get(P_ALPHA)?;
@@ -413,12 +386,7 @@ impl Design {
                     // tolerate round-off at the bounds (e.g. 5*sqrt(3) typed with 16 digits)
                     let tol = 1e-9 * p.max.abs().max(1.0);
                     if v < p.min - tol || v > p.max + tol {
-                        return Err(GeometryError::OutOfRange {
-                            name: name.into(),
-                            value: v,
-                            range,
-                            hint: hint_ext.into(),
-                        });
+                        return Err(GeometryError::OutOfRange { name: name.into(), value: v, range, hint: hint_ext.into() });
                     }
                 }
             }
@@ -429,12 +397,7 @@ impl Design {
                     return Err(GeometryError::NotFinite { name: P_R.into(), value: r, range: rr });
                 }
                 if r < rmin - 1e-12 || r > R_TUBE + 1e-9 {
-                    return Err(GeometryError::OutOfRange {
-                        name: P_R.into(),
-                        value: r,
-                        range: rr,
-                        hint: " (extended range)".into(),
-                    });
+                    return Err(GeometryError::OutOfRange { name: P_R.into(), value: r, range: rr, hint: " (extended range)".into() });
                 }
                 let lmin = l_min_extended(r.max(rmin));
                 if lmin > R_TUBE {
@@ -442,9 +405,7 @@ impl Design {
                         name: P_R.into(),
                         value: r,
                         range: rr,
-                        hint: format!(
-                            " (extended range; at r_mm = {r} no l_mm <= 20 keeps the inward offset of t = {T_WALL} mm free of self-intersection)"
-                        ),
+                        hint: format!(" (extended range; at r_mm = {r} no l_mm <= 20 keeps the inward offset of t = {T_WALL} mm free of self-intersection)"),
                     });
                 }
                 let lr = range_text(lmin, R_TUBE, "mm");
@@ -456,17 +417,11 @@ impl Design {
                         name: P_L.into(),
                         value: l,
                         range: lr,
-                        hint: format!(
-                            " (extended range at r_mm = {r}: the inward offset of t = {T_WALL} mm must not self-intersect)"
-                        ),
+                        hint: format!(" (extended range at r_mm = {r}: the inward offset of t = {T_WALL} mm must not self-intersect)"),
                     });
                 }
                 if !a.is_finite() {
-                    return Err(GeometryError::NotFinite {
-                        name: P_ALPHA.into(),
-                        value: a,
-                        range: "(-inf, +inf) deg".into(),
-                    });
+                    return Err(GeometryError::NotFinite { name: P_ALPHA.into(), value: a, range: "(-inf, +inf) deg".into() });
                 }
             }
         }

@@ -19,10 +19,7 @@ pub mod scalar;
 pub mod variant;
 pub mod volume;
 
-pub use design::{
-    l_min_extended, l_min_waist, offset_locally_valid, r_min_extended, Design, DesignSpace, GeometryError, ParamSpec, RangePolicy,
-    P_ALPHA, P_END_TANGENT, P_L, P_R,
-};
+pub use design::{l_min_extended, l_min_waist, offset_locally_valid, r_min_extended, Design, DesignSpace, GeometryError, ParamSpec, RangePolicy, P_ALPHA, P_END_TANGENT, P_L, P_R};
 pub use scalar::Scalar;
 pub use variant::{GeometryVariant, OffsetSide, SectionReading, TwistOrder};
 
@@ -306,11 +303,7 @@ impl<D: Scalar> Profile<D> {
             return Ok(());
         }
         if !(self.kappa_a.re() > 0.0) || !(b - g >= MIN_END_ARC_TURN_RAD) {
-            return Err(format!(
-                "the end arcs would turn by {:.3}° (at least {:.0}° needed: the profile degenerates into a single arc)",
-                (b - g).to_degrees(),
-                MIN_END_ARC_TURN_RAD.to_degrees()
-            ));
+            return Err(format!("the end arcs would turn by {:.3}° (at least {:.0}° needed: the profile degenerates into a single arc)", (b - g).to_degrees(), MIN_END_ARC_TURN_RAD.to_degrees()));
         }
         if b >= PI / 2.0 {
             return Err(format!("the junction tangent would be {:.2}° from the vertical (the profile would overhang)", b.to_degrees()));
@@ -482,13 +475,7 @@ impl<D: Scalar> Actuator<D> {
         let lp = dlam * sec.p;
         let w = (lp * lp + 1.0).sqrt();
         let iw = w.recip();
-        SurfacePoint {
-            s0: [lam * sec.c[0], lam * sec.c[1], z],
-            n0: [sec.nu[0] * iw, sec.nu[1] * iw, -lp * iw],
-            sec,
-            prof,
-            w,
-        }
+        SurfacePoint { s0: [lam * sec.c[0], lam * sec.c[1], z], n0: [sec.nu[0] * iw, sec.nu[1] * iw, -lp * iw], sec, prof, w }
     }
 
     /// Untwisted point of the wall: S0 − η t n0 (η = 0 outer, η = 1 inner); with an outward
@@ -784,12 +771,7 @@ impl ActuatorGeometry {
         let act = Actuator::with_variant(r, l, a.to_radians(), gamma, design.variant);
         if let Err(why) = act.profile.check() {
             let g = design.end_tangent_deg().unwrap_or(0.0);
-            return Err(GeometryError::OutOfRange {
-                name: P_END_TANGENT.into(),
-                value: g,
-                range: format!("[-30, {:.3}] deg", end_tangent_max_deg(l)),
-                hint: format!(" at l_mm = {l}: {why}"),
-            });
+            return Err(GeometryError::OutOfRange { name: P_END_TANGENT.into(), value: g, range: format!("[-30, {:.3}] deg", end_tangent_max_deg(l)), hint: format!(" at l_mm = {l}: {why}") });
         }
         let g = ActuatorGeometry { design: design.clone(), policy, act };
         if !(design.variant.is_spec() && gamma.is_none()) {
@@ -815,19 +797,12 @@ impl ActuatorGeometry {
             };
             if kmax * (T_WALL + 0.5) >= 1.0 {
                 let side = if act.variant.offset == OffsetSide::Inward { "convex radius" } else { "concave radius" };
-                let range = if design.variant.is_spec() && gamma.is_none() {
-                    format!("[{:.4}, 20] mm", l_min_extended(r).min(f64::MAX))
-                } else {
-                    "(0, 20] mm".into()
-                };
+                let range = if design.variant.is_spec() && gamma.is_none() { format!("[{:.4}, 20] mm", l_min_extended(r).min(f64::MAX)) } else { "(0, 20] mm".into() };
                 return Err(GeometryError::OutOfRange {
                     name: P_L.into(),
                     value: l,
                     range,
-                    hint: format!(
-                        " (at r_mm = {r} the designed surface has a {side} {:.3} mm < t + 0.5 mm: the offset would self-intersect)",
-                        1.0 / kmax
-                    ),
+                    hint: format!(" (at r_mm = {r} the designed surface has a {side} {:.3} mm < t + 0.5 mm: the offset would self-intersect)", 1.0 / kmax),
                 });
             }
         }
@@ -854,25 +829,14 @@ impl ActuatorGeometry {
             P_L => (0.0, 1.0, 0.0, 0.0),
             P_ALPHA => (0.0, 0.0, 1.0, 0.0),
             P_END_TANGENT => (0.0, 0.0, 0.0, 1.0),
-            other => {
-                return Err(GeometryError::UnknownParameter {
-                    name: other.to_string(),
-                    known: self.design.parameter_names().join(", "),
-                })
-            }
+            other => return Err(GeometryError::UnknownParameter { name: other.to_string(), known: self.design.parameter_names().join(", ") }),
         };
         let gamma = match (self.act.profile.gamma, sg != 0.0) {
             (Some(g), _) => Some(Dual64::new(g, sg.to_radians())),
             (None, true) => Some(Dual64::new(0.0, sg.to_radians())),
             (None, false) => None,
         };
-        Ok(Actuator::with_variant(
-            Dual64::new(self.r(), sr),
-            Dual64::new(self.l(), sl),
-            Dual64::new(self.alpha_rad(), sa.to_radians()),
-            gamma,
-            self.act.variant,
-        ))
+        Ok(Actuator::with_variant(Dual64::new(self.r(), sr), Dual64::new(self.l(), sl), Dual64::new(self.alpha_rad(), sa.to_radians()), gamma, self.act.variant))
     }
 
     /// Largest convex principal curvature of the untwisted outer surface over a sample grid
@@ -904,14 +868,7 @@ impl ActuatorGeometry {
                 let outer = volume::outer_volume(&a).eps;
                 let chamber = volume::chamber_volume(&a).eps;
                 let (ain, aout) = end_areas(&a);
-                ScalarDerivatives {
-                    param: name,
-                    outer_volume: outer,
-                    chamber_volume: chamber,
-                    wall_volume: outer - chamber,
-                    inner_end_area: ain.eps,
-                    outer_end_area: aout.eps,
-                }
+                ScalarDerivatives { param: name, outer_volume: outer, chamber_volume: chamber, wall_volume: outer - chamber, inner_end_area: ain.eps, outer_end_area: aout.eps }
             })
             .collect()
     }
@@ -1077,16 +1034,9 @@ mod tests {
         for r in [R0, 10.0, 13.2, 16.0, 19.5, 20.0] {
             let a = Section::<f64>::new(r);
             let b = Section::<f64>::from_lobe_centre(r, a.d);
-            for (x, y, what) in [
-                (a.u, b.u, "u"),
-                (a.e, b.e, "e"),
-                (a.x, b.x, "x"),
-                (a.t_max, b.t_max, "T"),
-                (a.b_min, b.b_min, "B"),
-                (a.perimeter, b.perimeter, "P"),
-                (a.area, b.area, "A"),
-                (a.phi_j, b.phi_j, "φJ"),
-            ] {
+            for (x, y, what) in
+                [(a.u, b.u, "u"), (a.e, b.e, "e"), (a.x, b.x, "x"), (a.t_max, b.t_max, "T"), (a.b_min, b.b_min, "B"), (a.perimeter, b.perimeter, "P"), (a.area, b.area, "A"), (a.phi_j, b.phi_j, "φJ")]
+            {
                 assert!((x - y).abs() < 1e-11 * (1.0 + x.abs()), "r = {r} {what}: {x} vs {y}");
             }
         }
@@ -1108,9 +1058,7 @@ mod tests {
         let d = Section::<Dual64>::with_reading(Dual64::new(R0, 1.0), SectionReading::MidpointCentres);
         assert!(d.u.eps.is_finite() && d.phi_j.eps.is_finite());
         let h = 1e-6;
-        let fd = (Section::<f64>::with_reading(R0 + h, SectionReading::MidpointCentres).u
-            - Section::<f64>::with_reading(R0 - h, SectionReading::MidpointCentres).u)
-            / (2.0 * h);
+        let fd = (Section::<f64>::with_reading(R0 + h, SectionReading::MidpointCentres).u - Section::<f64>::with_reading(R0 - h, SectionReading::MidpointCentres).u) / (2.0 * h);
         assert!((fd - d.u.eps).abs() < 1e-7, "{fd} vs {}", d.u.eps);
     }
 
@@ -1179,13 +1127,7 @@ mod tests {
 
     #[test]
     fn twisted_normal_is_the_unit_normal_and_twist_first_keeps_the_wall_thickness() {
-        let act = Actuator::<f64>::with_variant(
-            R0,
-            12.0,
-            150f64.to_radians(),
-            None,
-            GeometryVariant::parse("twist-first").unwrap(),
-        );
+        let act = Actuator::<f64>::with_variant(R0, 12.0, 150f64.to_radians(), None, GeometryVariant::parse("twist-first").unwrap());
         let a = act.lift();
         for &(s, z) in &[(0.03, 5.0), (0.2, 12.0), (0.41, 20.0), (0.77, 33.0)] {
             let (ps, n) = a.twisted_surface(Dual64::new(s, 1.0), Dual64::from(z));

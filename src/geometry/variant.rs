@@ -93,12 +93,7 @@ impl GeometryVariant {
     /// Parse the text form: `spec`, or tokens joined by `+` (order free, each choice at most once).
     pub fn parse(text: &str) -> Result<Self, String> {
         let t = text.trim();
-        let valid = || {
-            format!(
-                "valid values: {} (combine with '+', e.g. \"tips-on-r+outward+twist-first\")",
-                variant_names().iter().map(|n| format!("\"{n}\"")).collect::<Vec<_>>().join(", ")
-            )
-        };
+        let valid = || format!("valid values: {} (combine with '+', e.g. \"tips-on-r+outward+twist-first\")", variant_names().iter().map(|n| format!("\"{n}\"")).collect::<Vec<_>>().join(", "));
         if t.is_empty() {
             return Err(format!("empty geometry variant; {}", valid()));
         }

@@ -36,7 +36,9 @@ const QUANTITIES: [Quantity; 3] = [
 
 /// The grid's r values nearest to 5√3, 13.2 and 20 (distinct, within half the r range).
 pub fn panel_r_values(grid: &Grid) -> Vec<f64> {
-    let Some(ax) = grid.axes.iter().find(|a| a.name == P_R) else { return vec![] };
+    let Some(ax) = grid.axes.iter().find(|a| a.name == P_R) else {
+        return vec![];
+    };
     let mut out: Vec<f64> = Vec::new();
     for target in FIG5_R {
         if let Some(&v) = ax.values.iter().min_by(|a, b| (*a - target).abs().total_cmp(&(*b - target).abs())) {
@@ -52,12 +54,16 @@ pub fn panel_r_values(grid: &Grid) -> Vec<f64> {
 /// Draw the three maps into `out`; returns the files written (none when the grid has no
 /// r / l / α axes or no rows).
 pub fn draw_maps(out: &Path, grid: &Grid, rows: &[Row]) -> Result<Vec<PathBuf>> {
-    let axis = |n: &str| grid.axes.iter().find(|a| a.name == n).map(|a| {
-        let mut v = a.values.clone();
-        v.sort_by(f64::total_cmp);
-        v
-    });
-    let (Some(alphas), Some(ls)) = (axis(P_ALPHA), axis(P_L)) else { return Ok(vec![]) };
+    let axis = |n: &str| {
+        grid.axes.iter().find(|a| a.name == n).map(|a| {
+            let mut v = a.values.clone();
+            v.sort_by(f64::total_cmp);
+            v
+        })
+    };
+    let (Some(alphas), Some(ls)) = (axis(P_ALPHA), axis(P_L)) else {
+        return Ok(vec![]);
+    };
     let rs = panel_r_values(grid);
     if rows.is_empty() || rs.is_empty() {
         return Ok(vec![]);
@@ -65,10 +71,7 @@ pub fn draw_maps(out: &Path, grid: &Grid, rows: &[Row]) -> Result<Vec<PathBuf>> 
     register_font()?;
     // rows by (r, l, α) bit patterns
     let key = |r: f64, l: f64, a: f64| (r.to_bits(), l.to_bits(), a.to_bits());
-    let by: BTreeMap<(u64, u64, u64), &Row> = rows
-        .iter()
-        .filter_map(|row| Some((key(*row.design.get(P_R)?, *row.design.get(P_L)?, *row.design.get(P_ALPHA)?), row)))
-        .collect();
+    let by: BTreeMap<(u64, u64, u64), &Row> = rows.iter().filter_map(|row| Some((key(*row.design.get(P_R)?, *row.design.get(P_L)?, *row.design.get(P_ALPHA)?), row))).collect();
     let panel = Panels { rs, ls, alphas, by: &by };
     let mut files = Vec::new();
     for q in &QUANTITIES {
@@ -134,13 +137,7 @@ where
     let (x0, x1) = (a_edges[0].0, a_edges[a_edges.len() - 1].1);
     let (y0, y1) = (l_edges[0].0, l_edges[l_edges.len() - 1].1);
     for (area, &r) in panels.iter().zip(&p.rs) {
-        let mut chart = ChartBuilder::on(area)
-            .caption(format!("r = {r:.2} mm"), (FONT, 17))
-            .margin(10)
-            .x_label_area_size(45)
-            .y_label_area_size(55)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(err)?;
+        let mut chart = ChartBuilder::on(area).caption(format!("r = {r:.2} mm"), (FONT, 17)).margin(10).x_label_area_size(45).y_label_area_size(55).build_cartesian_2d(x0..x1, y0..y1).map_err(err)?;
         chart
             .configure_mesh()
             .disable_mesh()

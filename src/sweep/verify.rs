@@ -81,7 +81,9 @@ pub fn design_distance(a: &BTreeMap<String, f64>, b: &BTreeMap<String, f64>) -> 
     let mut sum = 0.0;
     let mut per = serde_json::Map::new();
     for p in &DesignSpace::actuator().params {
-        let (Some(x), Some(y)) = (a.get(&p.name), b.get(&p.name)) else { continue };
+        let (Some(x), Some(y)) = (a.get(&p.name), b.get(&p.name)) else {
+            continue;
+        };
         let scaled = (y - x) / (p.max - p.min);
         sum += scaled * scaled;
         per.insert(p.name.clone(), json!({"a": x, "b": y, "diff": y - x, "scaled_diff": scaled, "unit": p.unit}));
@@ -130,9 +132,7 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
         .filter(|r| r.status == "ok")
         .filter_map(|r| mode_of(r, mode).filter(|m| m.feasible && m.omega_j_m3.is_some()).map(|m| (r, m)))
         .max_by(|a, b| a.1.omega_j_m3.unwrap_or(f64::NEG_INFINITY).total_cmp(&b.1.omega_j_m3.unwrap_or(f64::NEG_INFINITY)).then(b.0.index.cmp(&a.0.index)))
-        .ok_or_else(|| {
-            anyhow!("{}: no feasible design with an energy density{} among {} rows", sweep_dir.display(), mode.map(|m| format!(" in mode {m}")).unwrap_or_default(), rows.len())
-        })?;
+        .ok_or_else(|| anyhow!("{}: no feasible design with an energy density{} among {} rows", sweep_dir.display(), mode.map(|m| format!(" in mode {m}")).unwrap_or_default(), rows.len()))?;
     let mode_name = mode.map(str::to_string).or_else(|| sb.mode.clone()).unwrap_or_else(|| "combined".into());
     let s_omega = sm.omega_j_m3.unwrap_or(f64::NAN);
     let fe_rows = rows.iter().filter(|r| r.status != "invalid-geometry").count() as u64;
@@ -142,12 +142,9 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
     let opt_feasible = !FAILED.contains(&best.status.as_str()) && best.max_radius_mm.is_some_and(|r| r <= limit * (1.0 + 1e-12));
     let ratio = if best.evaluations > 0 { Some(fe_rows as f64 / best.evaluations as f64) } else { None };
     // the sweep design nearest to the optimiser's
-    let nearest = rows
-        .iter()
-        .filter(|r| r.status == "ok")
-        .map(|r| (design_distance(&r.design, &best.design).0, r))
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(d, r)| json!({"id": r.id, "design": r.design, "scaled_distance": d, "omega_J_m3": mode_of(r, mode).and_then(|m| m.omega_j_m3), "feasible": mode_of(r, mode).is_some_and(|m| m.feasible)}));
+    let nearest = rows.iter().filter(|r| r.status == "ok").map(|r| (design_distance(&r.design, &best.design).0, r)).min_by(|a, b| a.0.total_cmp(&b.0)).map(
+        |(d, r)| json!({"id": r.id, "design": r.design, "scaled_distance": d, "omega_J_m3": mode_of(r, mode).and_then(|m| m.omega_j_m3), "feasible": mode_of(r, mode).is_some_and(|m| m.feasible)}),
+    );
     let v = json!({
         "objective": format!("omega_J_m3 ({mode_name} mode, the letter's rule)"),
         "mode": mode_name,

@@ -74,6 +74,15 @@ fn main() {
     if wanted("sweep_throughput") {
         sweep_throughput();
     }
+    if wanted("cold_evaluation") {
+        cold_evaluation();
+    }
+    if wanted("warm_start") {
+        warm_start();
+    }
+    if wanted("ordering") {
+        ordering(&geom);
+    }
 }
 
 /// Throughput of the Hex27 Q2/P1 element kernel (residual + tangent of one element, 27 Gauss
@@ -122,6 +131,24 @@ fn element_kernel(geom: &ActuatorGeometry) {
     );
 }
 
+/// Work counts of a set of paths: iterations per converged step (locating iterations apart)
+/// and the share of iterations in failed attempts.
+fn path_work(stats: &[&twistopt_solver::continuation::PathStats]) -> Value {
+    let (mut steps, mut its, mut failed, mut locate, mut attempts) = (0usize, 0usize, 0usize, 0usize, 0usize);
+    for s in stats {
+        steps += s.steps;
+        its += s.newton_iterations;
+        failed += s.failed_iterations;
+        locate += s.locate_iterations;
+        attempts += s.failed_attempts;
+    }
+    let per_step = (its - failed - locate) as f64 / steps.max(1) as f64;
+    json!({
+        "converged_steps": steps, "newton_iterations": its, "failed_attempts": attempts, "failed_iterations": failed, "locate_iterations": locate,
+        "iterations_per_converged_step": per_step, "failed_share": failed as f64 / its.max(1) as f64,
+    })
+}
+
 /// Designs per second of `twistopt sweep` (free + blocked ramped to failure, 150 kPa cap) on
 /// 2 threads at the `sweep` preset, on a 3-design sample spanning the Table-I box.
 fn sweep_throughput() {
@@ -142,8 +169,9 @@ fn sweep_throughput() {
     let cpu: f64 = rows.iter().map(|r| r.wall_time_s).sum();
     let rate = rows.len() as f64 / wall;
     let grid = 39_864.0;
+    let work = path_work(&rows.iter().flat_map(|r| r.scenes.values().map(|s| &s.path)).collect::<Vec<_>>());
     println!(
-        "sweep_throughput (sweep preset, 2 threads): {} designs in {wall:.1} s = {rate:.4} designs/s; {:.1} s per design on one thread; full Table-I grid ≈ {:.0} h at this rate (target ≤ 1 h)",
+        "sweep_throughput (sweep preset, 2 threads): {} designs in {wall:.1} s = {rate:.4} designs/s; {:.1} s per design on one thread; full Table-I grid ≈ {:.0} h at this rate (target ≤ 1 h); {work}",
         rows.len(),
         cpu / rows.len() as f64,
         grid / rate / 3600.0
@@ -151,10 +179,49 @@ fn sweep_throughput() {
     merge(
         "sweep_throughput",
         json!({
-            "description": "twistopt sweep's per-design evaluation (free + blocked ramped to failure or 150 kPa, pressure maximum under volume control) on 2 threads at the `sweep` preset (48x16x1 Hex27, sector), 3 designs (grid indices 0, 3, 6 of (r, l, α) ∈ {5√3, 17} × {10, 20} × {120, 300}); release build. Wall times depend on the machine's load",
-            "designs": rows.iter().map(|r| json!({"id": r.id, "status": r.status, "omega_J_m3": r.primary.omega_j_m3, "wall_time_s": r.wall_time_s})).collect::<Vec<_>>(),
+            "description": "twistopt sweep's per-design evaluation (free + blocked ramped to failure or 150 kPa, pressure maximum located under volume control) on 2 threads at the `sweep` preset (48x16x1 Hex27, sector), 3 designs (grid indices 0, 3, 6 of (r, l, α) ∈ {5√3, 17} × {10, 20} × {120, 300}); release build. Wall times depend on the machine's load",
+            "designs": rows.iter().map(|r| json!({"id": r.id, "status": r.status, "omega_J_m3": r.primary.omega_j_m3, "theta_max_deg": r.primary.theta_max_deg, "tau_max_Nm": r.primary.tau_max_nm,
+                "p_limit_kPa": r.scenes.iter().map(|(k, s)| (k.clone(), json!(s.p_reached_kpa))).collect::<serde_json::Map<_, _>>(),
+                "wall_time_s": r.wall_time_s, "path": path_work(&r.scenes.values().map(|s| &s.path).collect::<Vec<_>>())})).collect::<Vec<_>>(),
             "wall_time_s": wall, "designs_per_second": rate, "cpu_seconds_per_design": cpu / rows.len() as f64,
             "full_table1_grid_hours_at_this_rate": grid / rate / 3600.0, "target_hours": 1.0,
+            "path_work": work,
+            "before_issue_16": {"cpu_seconds_per_design": 135.9, "designs_wall_time_s": [107.5, 215.5, 84.8], "omega_J_m3": [78.412, 934.019, 0.291],
+                "note": "the previous solver (commit c08cba2) on this machine, same bench; its Ω interpolated τ linearly between ramp steps (errors up to 0.7 %), today's is computed at the exact common pressure"},
+        }),
+    );
+}
+
+/// A cold evaluation of the default-mesh energy-density optimum as the optimiser makes it: free
+/// and blocked scenes to 36.27 kPa with the adjoint gradient, plus the stability (limit-pressure)
+/// search above, on 2 threads.
+fn cold_evaluation() {
+    use twistopt::gradient::{design_gradient, DEFAULT_KS_RHO_PER_MM};
+    use twistopt::optimise::{LIMIT_WINDOW, STABILITY_MARGIN};
+    use twistopt::scene::{SceneKind, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::material::NeoHookean;
+    let geom = ActuatorGeometry::new(&Design::new(5.0 * 3f64.sqrt(), 20.0, 360.0), RangePolicy::TableI).expect("optimum is valid");
+    let opts = SceneOptions::new(MeshSpec::preset("default").expect("preset"), NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material").into());
+    let p = 36.27;
+    let cap = LIMIT_WINDOW * p / (1.0 - STABILITY_MARGIN);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().expect("pool");
+    let t0 = Instant::now();
+    let cpu0 = twistopt::evaluate::process_cpu_time_s();
+    let g = pool.install(|| design_gradient(&geom, &opts, &[SceneKind::Free, SceneKind::Blocked], p, DEFAULT_KS_RHO_PER_MM, None, Some(cap))).expect("evaluation");
+    let wall = t0.elapsed().as_secs_f64();
+    let cpu = twistopt::evaluate::process_cpu_time_s() - cpu0;
+    let work = path_work(&g.scenes.values().map(|s| &s.cost.path).collect::<Vec<_>>());
+    let omega = g.omega.get("combined").map(|o| o.value);
+    println!("cold_evaluation (default mesh, energy optimum, 2 threads): {wall:.1} s wall, {cpu:.1} s CPU, {} Newton iterations, Ω = {omega:?}; {work}", g.newton_iterations);
+    merge(
+        "cold_evaluation",
+        json!({
+            "description": "one optimiser evaluation from a cold start at the default-mesh energy-density optimum (r = 5√3, l = 20, α = 360°): free + blocked to 36.27 kPa with the adjoint gradient of every functional, then the limit-pressure search up to 1.25·p/(1 − 0.02); default preset (sector), 2 threads; target ≤ 60 s",
+            "wall_time_s": wall, "cpu_time_s": cpu, "target_wall_time_s": 60.0, "threads": 2,
+            "newton_iterations": g.newton_iterations, "omega_J_m3": omega,
+            "scenes": g.scenes.iter().map(|(k, s)| (k.clone(), json!({"status": s.status, "dofs": s.dofs, "forward_time_s": s.cost.forward_time_s, "gradient_time_s": s.cost.gradient_time_s, "limit_time_s": s.cost.limit_time_s, "p_limit_kPa": s.p_limit_kpa, "path": path_work(&[&s.cost.path])}))).collect::<serde_json::Map<_, _>>(),
+            "path_work": work,
+            "before_issue_16": "5–25 min, ≈ 500 Newton iterations (the issue's measurement)",
         }),
     );
 }
@@ -276,7 +343,7 @@ fn evaluation(geom: &ActuatorGeometry) {
         let r = run_pressure(geom, &opts, kind, &[60.0]).expect("scene");
         let last = r.steps.last().expect("steps");
         println!("evaluation {}: {} in {:.2} s, {} Newton iterations, θ = {:.3}°, τ = {:.4} N·m", r.scene, r.status, r.wall_time_s, r.newton_iterations, last.theta_deg, last.tau_nm);
-        scenes.insert(r.scene.clone(), json!({"status": r.status, "wall_time_s": r.wall_time_s, "newton_iterations": r.newton_iterations, "steps": r.steps.len(), "dofs": r.dofs, "theta_deg": last.theta_deg, "tau_Nm": last.tau_nm, "p_kPa": last.p_kpa}));
+        scenes.insert(r.scene.clone(), json!({"status": r.status, "wall_time_s": r.wall_time_s, "newton_iterations": r.newton_iterations, "steps": r.steps.len(), "dofs": r.dofs, "theta_deg": last.theta_deg, "tau_Nm": last.tau_nm, "p_kPa": last.p_kpa, "path": path_work(&[&r.path])}));
     }
     merge(
         "evaluation",
@@ -284,6 +351,89 @@ fn evaluation(geom: &ActuatorGeometry) {
             "description": "paper example, default fidelity (sector, Q2/P1), free + blocked ramps 0 → 60 kPa, release build",
             "total_wall_time_s": t.elapsed().as_secs_f64(),
             "scenes": Value::Object(scenes),
+        }),
+    );
+}
+
+/// Does a neighbouring design's converged state pay as a start? An optimiser step's second
+/// evaluation (free + blocked to p with gradients and the limit search), cold and warm-started
+/// from the first design's states, at the `default` and `sweep` presets.
+fn warm_start() {
+    use twistopt::gradient::{design_gradient, DEFAULT_KS_RHO_PER_MM};
+    use twistopt::optimise::{LIMIT_WINDOW, STABILITY_MARGIN};
+    use twistopt::scene::{SceneKind, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::material::NeoHookean;
+    let a = ActuatorGeometry::new(&Design::new(5.0 * 3f64.sqrt(), 20.0, 360.0), RangePolicy::TableI).expect("valid");
+    let p = 36.27;
+    let cap = LIMIT_WINDOW * p / (1.0 - STABILITY_MARGIN);
+    let scenes = [SceneKind::Free, SceneKind::Blocked];
+    let mut out = serde_json::Map::new();
+    for preset in ["sweep", "default"] {
+        let opts = SceneOptions::new(MeshSpec::preset(preset).expect("preset"), NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material").into());
+        let ga = design_gradient(&a, &opts, &scenes, p, DEFAULT_KS_RHO_PER_MM, None, Some(cap)).expect("first design");
+        let warm = ga.warm_starts();
+        let mut cases = serde_json::Map::new();
+        for (name, d) in [("step l -0.5 mm, α -10°", Design::new(5.0 * 3f64.sqrt(), 19.5, 350.0)), ("step α -40°", Design::new(5.0 * 3f64.sqrt(), 20.0, 320.0))] {
+            let b = ActuatorGeometry::new(&d, RangePolicy::TableI).expect("valid");
+            let t = Instant::now();
+            let cold = design_gradient(&b, &opts, &scenes, p, DEFAULT_KS_RHO_PER_MM, None, Some(cap)).expect("cold");
+            let t_cold = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let hot = design_gradient(&b, &opts, &scenes, p, DEFAULT_KS_RHO_PER_MM, Some(&warm), Some(cap)).expect("warm");
+            let t_warm = t.elapsed().as_secs_f64();
+            let (oc, ow) = (cold.omega.get("combined").map(|o| o.value), hot.omega.get("combined").map(|o| o.value));
+            println!("warm_start {preset} {name}: cold {t_cold:.1} s ({} its), warm {t_warm:.1} s ({} its), Ω {oc:?} vs {ow:?}", cold.newton_iterations, hot.newton_iterations);
+            cases.insert(name.into(), json!({"cold_s": t_cold, "cold_newton_iterations": cold.newton_iterations, "warm_s": t_warm, "warm_newton_iterations": hot.newton_iterations,
+                "warm_used": hot.scenes.values().all(|s| s.cost.warm_started), "omega_cold": oc, "omega_warm": ow, "speed_up": t_cold / t_warm}));
+        }
+        out.insert(preset.into(), Value::Object(cases));
+    }
+    merge(
+        "warm_start",
+        json!({
+            "description": "an optimiser evaluation (free + blocked to 36.27 kPa, adjoint gradients, limit search) of a design next to the energy optimum r = 5√3, l = 20, α = 360°, from a cold start and warm-started from the optimum's converged states (solved at their pressure on the new design, then the path onwards); release build, all cores",
+            "presets": Value::Object(out),
+        }),
+    );
+}
+
+/// Fill and Cholesky time of the sector tangent (free scene, paper example, 5 kPa) under faer's
+/// AMD and METIS nested dissection, from the sweep mesh to a fine 96x32x3 one.
+fn ordering(geom: &ActuatorGeometry) {
+    use twistopt::scene::{SceneKind, SceneModel, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::material::NeoHookean;
+    use twistopt_solver::model::Ordering;
+    let mut entries = serde_json::Map::new();
+    for mesh in ["sweep", "default", "fine", "96x32x3"] {
+        let spec = MeshSpec::parse(mesh).or_else(|_| MeshSpec::preset(mesh)).expect("mesh");
+        let opts = SceneOptions::new(spec, NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material").into());
+        let mut sm = SceneModel::build(geom, &opts, SceneKind::Free).expect("scene");
+        let q = vec![0.0; sm.model.n_reduced()];
+        let k = sm.model.assemble(&q, &sm.loads(5.0, 0.0), true).expect("assembly").k.expect("tangent");
+        let mut row = serde_json::Map::new();
+        for ord in [Ordering::Amd, Ordering::NestedDissection] {
+            let t = Instant::now();
+            if sm.model.set_ordering(ord).is_err() {
+                continue;
+            }
+            let t_sym = t.elapsed().as_secs_f64();
+            let runs = if mesh == "96x32x3" { 1 } else { 3 };
+            let (tf, _, _) = time(runs, || {
+                std::hint::black_box(sm.model.factor(&k).ok());
+            });
+            println!("ordering {mesh:8} {ord:?}: dofs {}, L nnz {}, symbolic {:.0} ms, Cholesky {:.0} ms", sm.model.n_reduced(), sm.model.factor_nnz(), t_sym * 1e3, tf * 1e3);
+            row.insert(format!("{ord:?}"), json!({"factor_nnz": sm.model.factor_nnz(), "symbolic_ms": t_sym * 1e3, "cholesky_ms": tf * 1e3}));
+        }
+        row.insert("dofs".into(), json!(sm.model.n_reduced()));
+        row.insert("tangent_nnz_upper".into(), json!(sm.model.nnz()));
+        entries.insert(mesh.into(), Value::Object(row));
+    }
+    merge(
+        "ordering",
+        json!({
+            "description": "fill-reducing ordering of the Hex27 sector tangent (free scene, paper example, 5 kPa): factor nnz, symbolic analysis and numeric Cholesky (median of 3; 1 at 96x32x3) under faer's AMD and METIS nested dissection; release build, all cores",
+            "threads": rayon::current_num_threads(),
+            "meshes": Value::Object(entries),
         }),
     );
 }

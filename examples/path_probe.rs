@@ -1,4 +1,9 @@
-//! Run a scene through the new continuation and print the path.
+//! Diagnostic: run one scene through the path follower and print every point (with
+//! `TWISTOPT_TRACE=1`, every Newton iterate and step decision too). The tuning of issue 16 was
+//! measured with it. Arguments: MESH SCENE P_MAX R L ALPHA [INITIAL TARGET_ERROR RTOL SWITCH];
+//! experiment switches by environment: MIXED (mixed tangent), QUAD (quadratic predictor), CART
+//! (Cartesian predictor), GROWTH, ETOL, FLOOR, STATIONS=p1,p2,… (kPa).
+//!   cargo run --release --example path_probe -- sweep free 150 8.660254 16 200
 use std::time::Instant;
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
@@ -19,24 +24,67 @@ fn main() {
     let m = &sm.model;
     let nodes: Vec<usize> = (0..m.mesh.nodes.len()).collect();
     let f = vec![Functional::BodyDof { body: 0, dof: 5 }, Functional::BodyReaction { body: 0, dof: 5 }, Functional::MaxRadius { nodes }, Functional::CavityVolume];
-    let lp = LoadPath::new(m, sm.loads(0.0, 0.0), sm.loads(p_max, 0.0), f);
+    let mut lp = LoadPath::new(m, sm.loads(0.0, 0.0), sm.loads(p_max, 0.0), f);
+    if std::env::var_os("CART").is_some() {
+        lp.predictor = None;
+    }
     let mut o = ContinuationOptions::default();
     o.initial = arg(7, 0.02);
     o.target_error = arg(8, 0.05);
     o.newton.rtol = arg(9, 1e-10);
-    if let Some(s) = a.get(10) { o.switch_stiffness = Some(s.parse().unwrap()); }
-    if std::env::var_os("EXACT").is_some() { o.mixed_tangent = false; }
-    if std::env::var_os("QUAD").is_some() { o.cubic = false; }
-    if let Some(c) = std::env::var_os("ETOL") { o.newton.etol = c.to_str().unwrap().parse().unwrap(); }
-    if let Some(c) = std::env::var_os("FLOOR") { o.newton.stagnation_rtol = c.to_str().unwrap().parse().unwrap(); }
+    if let Some(s) = a.get(10) {
+        o.switch_stiffness = Some(s.parse().unwrap());
+    }
+    if std::env::var_os("MIXED").is_some() {
+        o.mixed_tangent = true;
+    }
+    if std::env::var_os("QUAD").is_some() {
+        o.cubic = false;
+    }
+    if let Some(c) = std::env::var_os("GROWTH") {
+        o.max_growth = c.to_str().unwrap().parse().unwrap();
+    }
+    if let Some(c) = std::env::var_os("ETOL") {
+        o.newton.etol = c.to_str().unwrap().parse().unwrap();
+    }
+    if let Some(c) = std::env::var_os("FLOOR") {
+        o.newton.stagnation_rtol = c.to_str().unwrap().parse().unwrap();
+    }
     let stops = vec![Stop { name: "ballooning".into(), output: 2, threshold: 28.75, rising: true }];
     let t0 = Instant::now();
-    let r = follow(&lp, &vec![0.0; m.n_reduced()], 0.0, 1.0, &[], &stops, &o);
+    let stations: Vec<f64> = std::env::var("STATIONS").ok().map(|v| v.split(',').map(|x| x.parse::<f64>().unwrap() / p_max).collect()).unwrap_or_default();
+    let r = follow(&lp, &vec![0.0; m.n_reduced()], 0.0, 1.0, &stations, &stops, &o);
     let dt = t0.elapsed().as_secs_f64();
     for p in &r.points {
-        println!("  p {:9.4} θ {:9.4}° τ {:9.5} R {:7.3} V {:10.1} stable {} its {} {:?}", p.lam * p_max, p.outputs[0].to_degrees(), -p.outputs[1] * sm.multiplicity * 1e-3, p.outputs[2], p.outputs[3] * 3.0, p.stable, p.newton_iterations, p.kind);
+        println!(
+            "  p {:12.8} θ {:14.10}° τ {:14.10} R {:14.10} V {:14.6} stable {} its {} {:?}",
+            p.lam * p_max,
+            p.outputs[0].to_degrees(),
+            -p.outputs[1] * sm.multiplicity * 1e-3,
+            p.outputs[2],
+            p.outputs[3] * 3.0,
+            p.stable,
+            p.newton_iterations,
+            p.kind
+        );
     }
-    if r.points.is_empty() { println!("no points: {:?}", r.end); return; }
+    if r.points.is_empty() {
+        println!("no points: {:?}", r.end);
+        return;
+    }
     let s = &r.stats;
-    println!("{} end {:?} at p {:.6}: steps {} newton {} (failed {} in {} attempts, locate {}), factorizations {}, {:.2}/step, {:.2}s", kind.name(), r.end, r.points.last().unwrap().lam * p_max, s.steps, s.newton_iterations, s.failed_iterations, s.failed_attempts, s.locate_iterations, s.factorizations, (s.newton_iterations - s.locate_iterations) as f64 / s.steps.max(1) as f64, dt);
+    println!(
+        "{} end {:?} at p {:.6}: steps {} newton {} (failed {} in {} attempts, locate {}), factorizations {}, {:.2}/step, {:.2}s",
+        kind.name(),
+        r.end,
+        r.points.last().unwrap().lam * p_max,
+        s.steps,
+        s.newton_iterations,
+        s.failed_iterations,
+        s.failed_attempts,
+        s.locate_iterations,
+        s.factorizations,
+        (s.newton_iterations - s.locate_iterations) as f64 / s.steps.max(1) as f64,
+        dt
+    );
 }

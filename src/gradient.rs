@@ -31,6 +31,8 @@ use crate::geometry::{ActuatorGeometry, Design, RangePolicy};
 use crate::meshing::mesh_shape_derivatives;
 use crate::scene::{continue_to_failure, equilibrium, SceneError, SceneKind, SceneModel, SceneOptions, SceneStatus};
 use twistopt_solver::adjoint::{self, Direction, Functional};
+use twistopt_solver::continuation::{correct, PathStats};
+use twistopt_solver::solve::NewtonOptions;
 use twistopt_solver::material::Material;
 
 /// Default KS parameter (1/mm). The gap to the true max is at most ln(N)/ρ and in practice a few
@@ -55,6 +57,10 @@ pub struct Cost {
     /// Newton iterations and time of the limit search
     pub limit_newton_iterations: usize,
     pub limit_time_s: f64,
+    /// continuation work counts of the forward ramp and the limit search together: converged
+    /// steps, Newton iterations and those in failed attempts
+    #[serde(default)]
+    pub path: PathStats,
 }
 
 /// Values and gradients of one scene at one pressure.
@@ -113,10 +119,7 @@ fn functionals(sm: &SceneModel, rho: f64) -> Vec<(&'static str, Functional, f64)
 /// MPa at fixed κ/μ; Neo-Hookean only).
 fn directions(geom: &ActuatorGeometry, opts: &SceneOptions, sm: &SceneModel) -> Result<Vec<Direction>, SceneError> {
     let spec = sm.mesh.spec;
-    let mut dirs: Vec<Direction> = mesh_shape_derivatives(geom, &spec)?
-        .into_iter()
-        .map(|(name, dx)| Direction { name, dx0: Some(dx), ..Default::default() })
-        .collect();
+    let mut dirs: Vec<Direction> = mesh_shape_derivatives(geom, &spec)?.into_iter().map(|(name, dx)| Direction { name, dx0: Some(dx), ..Default::default() }).collect();
     dirs.push(Direction { name: P_PRESSURE.into(), dpressure: 1e-3, ..Default::default() });
     if let Material::NeoHookean(nh) = opts.material {
         dirs.push(Direction { name: P_MU.into(), dparams: vec![1.0, nh.kappa / nh.mu], ..Default::default() });
@@ -128,18 +131,13 @@ fn directions(geom: &ActuatorGeometry, opts: &SceneOptions, sm: &SceneModel) -> 
 /// a converged state of the same mesh topology to continue from (e.g. the previous design's).
 /// With `limit_cap`, the pressure is also continued from p up to that cap to find where the
 /// scene fails (its pressure maximum) and the sensitivity of that limit pressure.
-pub fn scene_gradient(
-    geom: &ActuatorGeometry,
-    opts: &SceneOptions,
-    kind: SceneKind,
-    p_kpa: f64,
-    rho: f64,
-    warm: Option<(&[f64], f64)>,
-    limit_cap: Option<f64>,
-) -> Result<SceneGradient, SceneError> {
+pub fn scene_gradient(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, warm: Option<(&[f64], f64)>, limit_cap: Option<f64>) -> Result<SceneGradient, SceneError> {
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
     let mut eq = equilibrium(&sm, opts, p_kpa, warm);
+    if eq.end.is_none() {
+        polish(&sm, opts, &mut eq);
+    }
     let forward_time_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let (status, cause) = eq.end.clone().unwrap_or_else(|| (SceneStatus::Converged, String::new()));
@@ -158,7 +156,7 @@ pub fn scene_gradient(
         p_limit_kpa: None,
         p_limit_cause: None,
         p_limit_gradient: BTreeMap::new(),
-        cost: Cost { newton_iterations: eq.newton_iterations, forward_time_s, warm_started: eq.warm_started, ..Default::default() },
+        cost: Cost { newton_iterations: eq.newton_iterations, forward_time_s, warm_started: eq.warm_started, path: eq.path.clone(), ..Default::default() },
         q: eq.q.clone(),
     };
     let fset = functionals(&sm, rho);
@@ -211,6 +209,7 @@ pub fn scene_gradient(
         // the limit state: this one if the ramp already failed before p, else continue upward
         let cont = continue_to_failure(&sm, opts, &eq, cap);
         out.cost.limit_newton_iterations = cont.newton_iterations();
+        out.cost.path.add(&cont.stats());
         if eq.end.is_some() {
             // the forward path already ended at the limit: its factor went to the adjoint above
             eq.factor = sm.model.assemble(&eq.q, &eq.loads, true).ok().and_then(|a| {
@@ -275,16 +274,7 @@ fn param_scale(name: &str, geom: &ActuatorGeometry, opts: &SceneOptions, p: f64)
 }
 
 /// Values of the functionals at a perturbed input, from a Newton solve warm-started at `base`.
-fn perturbed(
-    geom: &ActuatorGeometry,
-    opts: &SceneOptions,
-    kind: SceneKind,
-    p_kpa: f64,
-    rho: f64,
-    name: &str,
-    delta: f64,
-    base: &SceneGradient,
-) -> Option<BTreeMap<String, f64>> {
+fn perturbed(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, name: &str, delta: f64, base: &SceneGradient) -> Option<BTreeMap<String, f64>> {
     let (g2, o2, p2) = match name {
         P_PRESSURE => (geom.clone(), opts.clone(), p_kpa + delta),
         P_MU => {
@@ -323,6 +313,25 @@ fn in_box(d: &Design) -> bool {
     d.values.iter().all(|(k, v)| space.get(k).map(|s| *v >= s.min - 1e-9 && *v <= s.max + 1e-9).unwrap_or(true))
 }
 
+/// The path follower stops at ‖r‖ ≤ 1e-7 of the force scale, enough for the outputs (< 1e-9
+/// relative). The adjoint's gradient is linear in the state error, and with κ/μ = 300 that error
+/// is amplified by the tangent's conditioning: at 1e-7 the gradients of θ were off by 4e-4
+/// relative (FD check). One more Newton correction to 1e-10 (usually a single iteration, whose
+/// factor the adjoint then uses) brings them to the FD accuracy.
+fn polish(sm: &SceneModel, opts: &SceneOptions, eq: &mut crate::scene::Equilibrium) {
+    let tight = NewtonOptions { rtol: opts.steps.newton.rtol.min(1e-10), ..opts.steps.newton.clone() };
+    let lp = sm.path(sm.loads(0.0, 0.0), eq.loads.clone(), None);
+    if let Ok(s) = correct(&lp, &eq.q, 1.0, None, &tight, false, None, false) {
+        eq.newton_iterations += s.iterations;
+        eq.path.newton_iterations += s.iterations;
+        eq.path.factorizations += s.iterations;
+        if let Some(k) = s.ev.k {
+            eq.q = s.q;
+            eq.factor = Some((k, s.factor));
+        }
+    }
+}
+
 /// Values only (no gradient) at a perturbed input: warm Newton (falls back to a ramp).
 fn scene_values(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, warm: Option<(&[f64], f64)>) -> Option<BTreeMap<String, f64>> {
     let sm = SceneModel::build(geom, opts, kind).ok()?;
@@ -340,13 +349,7 @@ fn scene_values(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p
 /// relative steps `rel_steps` (× the parameter's scale); one-sided second-order differences at a
 /// bound of the Table-I box, and a Richardson extrapolation of the two last steps (give the steps
 /// from large to small). Returns per functional and parameter the comparison.
-pub fn fd_check(
-    geom: &ActuatorGeometry,
-    opts: &SceneOptions,
-    kind: SceneKind,
-    base: &SceneGradient,
-    rel_steps: &[f64],
-) -> BTreeMap<String, BTreeMap<String, FdComponent>> {
+pub fn fd_check(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, base: &SceneGradient, rel_steps: &[f64]) -> BTreeMap<String, BTreeMap<String, FdComponent>> {
     let params: Vec<String> = base.gradients.values().next().map(|g| g.keys().cloned().collect()).unwrap_or_default();
     let rho = base.ks_rho_per_mm;
     let p = base.p_kpa;
@@ -438,7 +441,7 @@ pub struct DesignGradient {
     /// Ω of the combined pair (free + blocked) and/or the pure-twist pair, with gradients
     pub omega: BTreeMap<String, OmegaGradient>,
     /// Newton iterations of every scene: equilibrium, warm start and the limit-pressure search
-    /// (a failed load step counts min(3, max_iter))
+    /// (every iteration, those of failed attempts included)
     pub newton_iterations: usize,
     pub adjoint_solves: usize,
     pub forward_time_s: f64,

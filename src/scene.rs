@@ -28,11 +28,11 @@
 use crate::geometry::{ActuatorGeometry, L_TUBE, R0_ENVELOPE, T_WALL};
 use crate::meshing::{build_mesh, ActuatorMesh, MeshError, MeshSpec};
 use std::time::Instant;
+use twistopt_solver::adjoint::Functional;
+use twistopt_solver::continuation::{correct, follow, ContinuationOptions, LoadPath, PathEnd, PathStats, PointKind, Stop};
 use twistopt_solver::dofmap::{BodyDof, Constraints, Cyclic, DofSpec, RigidBody};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::Material;
-use twistopt_solver::adjoint::Functional;
-use twistopt_solver::continuation::{correct, follow, ContinuationOptions, LoadPath, PathEnd, PathStats, PointKind, Stop};
 use twistopt_solver::model::{Assembled, Factor, Loads, Model, ModelError};
 use twistopt_solver::solve::FailureCause;
 
@@ -85,14 +85,7 @@ impl SceneKind {
     fn cap_dofs(self, sector: bool) -> [DofSpec; 6] {
         let lateral = if sector { DofSpec::Prescribed(0.0) } else { DofSpec::Free };
         let held = DofSpec::Prescribed(0.0);
-        [
-            lateral,
-            lateral,
-            if self.axial_free() { DofSpec::Free } else { held },
-            lateral,
-            lateral,
-            if self.rotation_free() { DofSpec::Free } else { held },
-        ]
+        [lateral, lateral, if self.axial_free() { DofSpec::Free } else { held }, lateral, lateral, if self.rotation_free() { DofSpec::Free } else { held }]
     }
 }
 
@@ -292,9 +285,7 @@ impl SceneFields {
                 let conn = self.mesh.element(e);
                 let x0: Vec<[f64; 3]> = conn.iter().map(|&n| self.mesh.nodes[n]).collect();
                 let u: Vec<[f64; 3]> = conn.iter().map(|&n| self.displacements[k][n]).collect();
-                twistopt_solver::element::mean_cauchy_stress(&self.formulation, &rule, &self.material, &params, &x0, &u)
-                    .map(|s| twistopt_solver::element::von_mises(&s))
-                    .unwrap_or(0.0)
+                twistopt_solver::element::mean_cauchy_stress(&self.formulation, &rule, &self.material, &params, &x0, &u).map(|s| twistopt_solver::element::von_mises(&s)).unwrap_or(0.0)
             })
             .collect()
     }
@@ -309,13 +300,7 @@ impl SceneModel {
         cons.prescribe_set(&mesh.node_sets["bottom"], &[0, 1, 2], 0.0);
         let top_nodes = mesh.node_sets["top"].clone();
         let cap_reference = [0.0, 0.0, L_TUBE];
-        cons.bodies.push(RigidBody {
-            name: "cap".into(),
-            reference: cap_reference,
-            nodes: top_nodes.clone(),
-            mask: [true; 3],
-            dofs: kind.cap_dofs(opts.sector),
-        });
+        cons.bodies.push(RigidBody { name: "cap".into(), reference: cap_reference, nodes: top_nodes.clone(), mask: [true; 3], dofs: kind.cap_dofs(opts.sector) });
         if opts.sector {
             cons.cyclic = Some(Cyclic { pairs: am.cyclic_pairs.clone(), angle: 2.0 * std::f64::consts::PI / 3.0 });
         }
@@ -331,16 +316,7 @@ impl SceneModel {
             BodyDof::Presc(s) => Some(s),
             BodyDof::Free(_) => None,
         };
-        Ok(SceneModel {
-            kind,
-            model,
-            multiplicity: if opts.sector { 3.0 } else { 1.0 },
-            top_nodes,
-            cavity_nodes,
-            cap_reference,
-            rotation_slot,
-            mesh: am,
-        })
+        Ok(SceneModel { kind, model, multiplicity: if opts.sector { 3.0 } else { 1.0 }, top_nodes, cavity_nodes, cap_reference, rotation_slot, mesh: am })
     }
 
     /// Loads at pressure p (kPa) and prescribed cap rotation θ (rad).
@@ -404,11 +380,7 @@ impl SceneModel {
     /// sector included). Contact itself is not modelled; a vacuum path stops where this reaches 0.
     pub fn contact_margin(&self, a: &Assembled, gap: f64) -> f64 {
         let x0 = &self.model.mesh.nodes;
-        let cur: Vec<([f64; 3], [f64; 3])> = self
-            .cavity_nodes
-            .iter()
-            .map(|&n| (x0[n], [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]]))
-            .collect();
+        let cur: Vec<([f64; 3], [f64; 3])> = self.cavity_nodes.iter().map(|&n| (x0[n], [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]])).collect();
         let copies: Vec<f64> = if self.multiplicity > 1.0 { vec![0.0, 2.0 * std::f64::consts::PI / 3.0, -2.0 * std::f64::consts::PI / 3.0] } else { vec![0.0] };
         let far = 2.0 * T_WALL;
         let mut dmin = f64::INFINITY;
@@ -465,6 +437,12 @@ struct ScenePath {
 /// Follow the scene's pressure from the state `q0` at `p0_kpa` to `p_end_kpa` with stations at
 /// `stations_kpa`; the ballooning limit and (for vacuum) self-contact stop it where `stop` says.
 fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
+    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop)
+}
+
+/// [`pressure_path`] with its own path options.
+#[allow(clippy::too_many_arguments)]
+fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
     let vacuum = p_end_kpa < 0.0;
     let gap = sm.contact_gap();
     let lp = sm.path(sm.loads(0.0, 0.0), sm.loads(p_end_kpa, 0.0), (vacuum && stop).then_some(gap));
@@ -477,12 +455,9 @@ fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, 
     }
     let stations: Vec<f64> = stations_kpa.iter().map(|p| p / p_end_kpa).collect();
     let lam0 = if p_end_kpa != 0.0 { p0_kpa / p_end_kpa } else { 0.0 };
-    let res = follow(&lp, q0, lam0, 1.0, &stations, &stops, &opts.steps);
-    let points: Vec<ScenePoint> = res
-        .points
-        .iter()
-        .map(|pt| ScenePoint { record: sm.step_record(&pt.outputs, lp.loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations), q: pt.q.clone() })
-        .collect();
+    let res = follow(&lp, q0, lam0, 1.0, &stations, &stops, path_opts);
+    let points: Vec<ScenePoint> =
+        res.points.iter().map(|pt| ScenePoint { record: sm.step_record(&pt.outputs, lp.loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations), q: pt.q.clone() }).collect();
     let p_last = points.last().map(|p| p.record.p_kpa).unwrap_or(p0_kpa);
     let limit = opts.ballooning_limit_mm;
     let end = match res.end {
@@ -490,10 +465,9 @@ fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, 
         PathEnd::Stopped(i) if stops[i].name == "ballooning" => Some((SceneStatus::Ballooning, format!("max deformed radius reached the ballooning limit {limit:.2} mm at p = {p_last:.4} kPa"))),
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
         PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),
-        PathEnd::Instability => Some((
-            SceneStatus::LimitPoint,
-            format!("the tangent loses positive definiteness beyond p = {p_last:.4} kPa with the pressure still rising (a bifurcation; located on the path)"),
-        )),
+        PathEnd::Instability => {
+            Some((SceneStatus::LimitPoint, format!("the tangent loses positive definiteness beyond p = {p_last:.4} kPa with the pressure still rising (a bifurcation; located on the path)")))
+        }
         PathEnd::Failed(f) => {
             let cause = match f {
                 FailureCause::LimitPoint => format!("tangent lost positive definiteness beyond p = {p_last:.3} kPa (pressure maximum / instability)"),
@@ -563,7 +537,7 @@ pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Optio
         // the warm state solved at its own pressure on the new design, then the path onwards
         let lp = sm.path(sm.loads(0.0, 0.0), sm.loads(p_kpa, 0.0), None);
         let lam_w = pw / p_kpa;
-        match correct(&lp, w, lam_w, None, &opts.steps.newton, opts.steps.mixed_tangent, None) {
+        match correct(&lp, w, lam_w, None, &opts.steps.newton, opts.steps.mixed_tangent, None, false) {
             Ok(s) if s.stable => {
                 spent += s.iterations;
                 let path = pressure_path(sm, opts, &s.q, pw, p_kpa, &[], false);
@@ -583,11 +557,11 @@ pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Optio
 /// the last converged state before a solver failure — with the failure in `end`.
 pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibrium, p_cap: f64) -> LimitOutcome {
     if from.end.is_some() || p_cap <= from.loads.pressure * 1e3 {
-        return LimitOutcome::BelowCap { newton_iterations: 0 };
+        return LimitOutcome::BelowCap { stats: PathStats::default() };
     }
     let path = pressure_path(sm, opts, &from.q, from.loads.pressure * 1e3, p_cap, &[], false);
     if path.end.is_none() {
-        return LimitOutcome::BelowCap { newton_iterations: path.stats.newton_iterations };
+        return LimitOutcome::BelowCap { stats: path.stats };
     }
     LimitOutcome::Found(Equilibrium::from_path(sm, path, 0, false))
 }
@@ -596,8 +570,8 @@ pub fn continue_to_failure(sm: &SceneModel, opts: &SceneOptions, from: &Equilibr
 pub enum LimitOutcome {
     /// the state where the path fails (at the pressure maximum for a fold), with the failure in `end`
     Found(Equilibrium),
-    /// the pressure reached the cap without failing
-    BelowCap { newton_iterations: usize },
+    /// the pressure reached the cap without failing (with the path's work counts)
+    BelowCap { stats: PathStats },
 }
 
 impl LimitOutcome {
@@ -610,7 +584,14 @@ impl LimitOutcome {
     pub fn newton_iterations(&self) -> usize {
         match self {
             LimitOutcome::Found(e) => e.newton_iterations,
-            LimitOutcome::BelowCap { newton_iterations } => *newton_iterations,
+            LimitOutcome::BelowCap { stats } => stats.newton_iterations,
+        }
+    }
+    /// The continuation's work counts (steps, iterations, failed attempts).
+    pub fn stats(&self) -> PathStats {
+        match self {
+            LimitOutcome::Found(e) => e.path.clone(),
+            LimitOutcome::BelowCap { stats } => stats.clone(),
         }
     }
 }
@@ -635,7 +616,9 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
     let mut status = (SceneStatus::Completed, String::new());
     let mut stats = PathStats::default();
     for branch in [pos, neg] {
-        let Some(&p_end) = branch.last() else { continue };
+        let Some(&p_end) = branch.last() else {
+            continue;
+        };
         let path = pressure_path(&sm, opts, &q0, 0.0, p_end, &branch[..branch.len() - 1], true);
         stats.add(&path.stats);
         for p in path.points.into_iter().skip(1) {
@@ -693,9 +676,14 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
         return Ok(());
     }
     let below = r.steps.iter().enumerate().filter(|(_, s)| s.p_kpa * sg >= 0.0 && s.p_kpa * sg < p_kpa * sg).max_by(|a, b| (a.1.p_kpa * sg).total_cmp(&(b.1.p_kpa * sg)));
-    let Some(i) = below.map(|(i, _)| i) else { return Ok(()) };
+    let Some(i) = below.map(|(i, _)| i) else {
+        return Ok(());
+    };
     let sm = SceneModel::build(geom, opts, kind)?;
-    let path = pressure_path(&sm, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false);
+    // a short segment from a converged step: try it in one step (the step control shrinks it
+    // if needed)
+    let short = ContinuationOptions { initial: 1.0, max: 1.0, ..opts.steps.clone() };
+    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false);
     r.newton_iterations += path.stats.newton_iterations;
     r.path.add(&path.stats);
     if path.end.is_none() {

@@ -233,10 +233,7 @@ pub fn grid_from_section(section: &toml::Table) -> Result<Grid> {
                 }
             }
             name if space.get(name).is_some() => axes.push(Axis { name: name.to_string(), values: axis_values(name, v)? }),
-            other => bail!(
-                "sweep.{other}: unknown key (expected grid, every, range or a design parameter: {})",
-                space.names().join(", ")
-            ),
+            other => bail!("sweep.{other}: unknown key (expected grid, every, range or a design parameter: {})", space.names().join(", ")),
         }
     }
     let grid = match (named, axes.is_empty()) {
@@ -256,9 +253,7 @@ pub fn grid_from_section(section: &toml::Table) -> Result<Grid> {
 }
 
 fn axis_values(name: &str, v: &toml::Value) -> Result<Vec<f64>> {
-    let num = |x: &toml::Value, what: &str| -> Result<f64> {
-        x.as_float().or_else(|| x.as_integer().map(|i| i as f64)).ok_or_else(|| anyhow!("sweep.{name}.{what} must be a number"))
-    };
+    let num = |x: &toml::Value, what: &str| -> Result<f64> { x.as_float().or_else(|| x.as_integer().map(|i| i as f64)).ok_or_else(|| anyhow!("sweep.{name}.{what} must be a number")) };
     match v {
         toml::Value::Array(list) => list.iter().map(|x| num(x, "values")).collect(),
         toml::Value::Table(t) => {
@@ -378,9 +373,7 @@ impl SweepConfig {
         let v = problem.validate()?;
         let p_max_kpa = match v.load {
             LoadPlan::Ramp(p) => p,
-            LoadPlan::Targets(_) => bail!(
-                "load: a sweep ramps each design to failure: give load.p_max_kPa (e.g. --set load.p_max_kPa=150) instead of load.pressures_kPa"
-            ),
+            LoadPlan::Targets(_) => bail!("load: a sweep ramps each design to failure: give load.p_max_kPa (e.g. --set load.p_max_kPa=150) instead of load.pressures_kPa"),
         };
         Ok(SweepConfig { problem, grid, shard, p_max_kpa })
     }
@@ -521,6 +514,9 @@ pub struct SceneSummary {
     pub steps: usize,
     pub dofs: usize,
     pub newton_iterations: usize,
+    /// the path follower's work counts (steps, failed attempts, event location)
+    #[serde(default)]
+    pub path: twistopt_solver::continuation::PathStats,
     pub wall_time_s: f64,
 }
 
@@ -599,11 +595,7 @@ fn p_reached(steps: &[StepRecord]) -> Option<f64> {
 
 /// The step with the largest |value| on the positive branch.
 fn max_abs(steps: &[StepRecord], value: impl Fn(&StepRecord) -> f64) -> Option<(f64, f64)> {
-    steps
-        .iter()
-        .filter(|s| s.p_kpa > 0.0 && value(s).is_finite())
-        .max_by(|a, b| value(a).abs().total_cmp(&value(b).abs()))
-        .map(|s| (value(s), s.p_kpa))
+    steps.iter().filter(|s| s.p_kpa > 0.0 && value(s).is_finite()).max_by(|a, b| value(a).abs().total_cmp(&value(b).abs())).map(|s| (value(s), s.p_kpa))
 }
 
 /// Pressure where the max radius first reaches `limit` on the positive branch (interpolated),
@@ -634,7 +626,9 @@ pub fn mode_summary(free: Option<&SceneResult>, blocked: Option<&SceneResult>, l
     }
     let all: Vec<&StepRecord> = free.iter().chain(blocked.iter()).flat_map(|r| r.steps.iter()).collect();
     m.max_radius_reached_mm = all.iter().map(|s| s.max_radius_mm).filter(|x| x.is_finite()).fold(None, |a: Option<f64>, x| Some(a.map_or(x, |a| a.max(x))));
-    let (Some(f), Some(b)) = (free, blocked) else { return m };
+    let (Some(f), Some(b)) = (free, blocked) else {
+        return m;
+    };
     if let Some((pc, _, _)) = common_pressure(&f.steps, &b.steps, true) {
         if let Some(o) = omega_at_pressure(&f.steps, &b.steps, pc) {
             m.omega_j_m3 = fin(o.omega_j_m3);
@@ -660,8 +654,7 @@ pub fn mode_summary(free: Option<&SceneResult>, blocked: Option<&SceneResult>, l
 }
 
 /// The two modes: (name, free-like scene, blocked-like scene).
-const MODES: [(&str, SceneKind, SceneKind); 2] =
-    [("combined", SceneKind::Free, SceneKind::Blocked), ("pure-twist", SceneKind::PureTwist, SceneKind::PureTwistBlocked)];
+const MODES: [(&str, SceneKind, SceneKind); 2] = [("combined", SceneKind::Free, SceneKind::Blocked), ("pure-twist", SceneKind::PureTwist, SceneKind::PureTwistBlocked)];
 
 fn scene_summary(r: &SceneResult) -> SceneSummary {
     SceneSummary {
@@ -671,6 +664,7 @@ fn scene_summary(r: &SceneResult) -> SceneSummary {
         steps: r.steps.len(),
         dofs: r.dofs,
         newton_iterations: r.newton_iterations,
+        path: r.path.clone(),
         wall_time_s: r.wall_time_s,
     }
 }
@@ -709,7 +703,22 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
     let mut results: Vec<SceneResult> = Vec::new();
     let mut errors = Vec::new();
     for &kind in &v.scenes {
-        match run_pressure(&geom, opts, kind, &plan.targets()) {
+        // the partner scene of an Ω pair that already ran stopped at its failure pressure: give
+        // this one a point there (the letter's Ω is taken at the lower failure pressure)
+        let mut targets = plan.targets();
+        for (_, fk, bk) in MODES {
+            let partner = if kind == bk {
+                fk
+            } else if kind == fk {
+                bk
+            } else {
+                continue;
+            };
+            if let Some(p) = results.iter().find(|r| r.scene == partner.name()).filter(|r| r.status != SceneStatus::Completed).and_then(|r| p_reached(&r.steps)) {
+                targets.push(p);
+            }
+        }
+        match run_pressure(&geom, opts, kind, &targets) {
             Ok(mut r) => {
                 select_steps(&mut r, &plan);
                 results.push(r);
@@ -721,7 +730,13 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
     for (_, fk, bk) in MODES {
         let (fi, bi) = (results.iter().position(|r| r.scene == fk.name()), results.iter().position(|r| r.scene == bk.name()));
         if let (Some(fi), Some(bi)) = (fi, bi) {
-            let (a, b) = if fi < bi { let (l, r) = results.split_at_mut(bi); (&mut l[fi], &mut r[0]) } else { let (l, r) = results.split_at_mut(fi); (&mut r[0], &mut l[bi]) };
+            let (a, b) = if fi < bi {
+                let (l, r) = results.split_at_mut(bi);
+                (&mut l[fi], &mut r[0])
+            } else {
+                let (l, r) = results.split_at_mut(fi);
+                (&mut r[0], &mut l[bi])
+            };
             crate::evaluate::complete_pair(&geom, opts, a, b);
         }
     }
@@ -738,11 +753,7 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
     if let Some(m) = row.mode.as_ref().and_then(|m| row.modes.get(m)) {
         row.primary = m.clone();
     }
-    let ends: Vec<String> = results
-        .iter()
-        .filter(|r| r.status != SceneStatus::Completed)
-        .map(|r| format!("{}: {} ({})", r.scene, r.status, r.cause.replace('\n', " ")))
-        .collect();
+    let ends: Vec<String> = results.iter().filter(|r| r.status != SceneStatus::Completed).map(|r| format!("{}: {} ({})", r.scene, r.status, r.cause.replace('\n', " "))).collect();
     if !errors.is_empty() {
         row.status = "model-error".into();
         row.cause = errors.into_iter().chain(ends).collect::<Vec<_>>().join("; ");
@@ -923,11 +934,7 @@ pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(
     }
     let done: BTreeSet<String> = read.rows.iter().map(|r| r.id.clone()).collect();
     let n = cfg.grid.len();
-    let pending: Vec<(u64, Design)> = (0..n)
-        .filter(|i| cfg.shard.contains(*i))
-        .map(|i| (i, cfg.design(i)))
-        .filter(|(i, d)| !done.contains(&design_id(*i, d)))
-        .collect();
+    let pending: Vec<(u64, Design)> = (0..n).filter(|i| cfg.shard.contains(*i)).map(|i| (i, cfg.design(i))).filter(|(i, d)| !done.contains(&design_id(*i, d))).collect();
     let shard_size = cfg.shard.size(n);
     log(&format!(
         "grid {}: {n} designs ({}); shard {}/{}: {shard_size}; done {}; to run {} at {} (p_max {} kPa, scenes {})",
@@ -979,16 +986,7 @@ pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(
         let rows = read_rows(&results)?.rows;
         files.extend(write_outputs(out, &manifest, &rows, Some(t0.elapsed().as_secs_f64()), Some(pending.len()), threads)?);
     }
-    Ok(RunReport {
-        n_designs: n,
-        n_designs_shard: shard_size,
-        already_done: done.len(),
-        computed: pending.len(),
-        dropped_lines: read.dropped,
-        wall_time_s: t0.elapsed().as_secs_f64(),
-        threads,
-        files,
-    })
+    Ok(RunReport { n_designs: n, n_designs_shard: shard_size, already_done: done.len(), computed: pending.len(), dropped_lines: read.dropped, wall_time_s: t0.elapsed().as_secs_f64(), threads, files })
 }
 
 fn csv_field(s: &str) -> String {
@@ -1044,9 +1042,9 @@ pub fn write_csv(path: &Path, grid: &Grid, rows: &[Row]) -> Result<()> {
 
 /// The best feasible row by Ω (primary mode).
 pub fn best_row(rows: &[Row]) -> Option<&Row> {
-    rows.iter().filter(|r| r.status == "ok" && r.primary.feasible && r.primary.omega_j_m3.is_some()).max_by(|a, b| {
-        a.primary.omega_j_m3.unwrap_or(f64::NEG_INFINITY).total_cmp(&b.primary.omega_j_m3.unwrap_or(f64::NEG_INFINITY)).then(b.index.cmp(&a.index))
-    })
+    rows.iter()
+        .filter(|r| r.status == "ok" && r.primary.feasible && r.primary.omega_j_m3.is_some())
+        .max_by(|a, b| a.primary.omega_j_m3.unwrap_or(f64::NEG_INFINITY).total_cmp(&b.primary.omega_j_m3.unwrap_or(f64::NEG_INFINITY)).then(b.index.cmp(&a.index)))
 }
 
 /// `summary.json`, `results.csv` and the maps of a sweep directory.
@@ -1250,7 +1248,19 @@ mod tests {
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
-        SceneResult { scene: name.into(), status: crate::scene::SceneStatus::LimitPoint, cause: String::new(), steps, dofs: 1, elements: 1, newton_iterations: 1, path: Default::default(), wall_time_s: 0.0, fields: None, states: Vec::new() }
+        SceneResult {
+            scene: name.into(),
+            status: crate::scene::SceneStatus::LimitPoint,
+            cause: String::new(),
+            steps,
+            dofs: 1,
+            elements: 1,
+            newton_iterations: 1,
+            path: Default::default(),
+            wall_time_s: 0.0,
+            fields: None,
+            states: Vec::new(),
+        }
     }
 
     #[test]
@@ -1338,12 +1348,7 @@ mod tests {
 
     #[test]
     fn invalid_designs_are_rows() {
-        let (problem, section) = problem_from_str(
-            "[load]\np_max_kPa = 10\n[fidelity]\nmesh = \"12x4x1\"\n[sweep]\nr_mm = [3.0]\nl_mm = [12]\nalpha_deg = [60]\n",
-            "t",
-            &[],
-        )
-        .unwrap();
+        let (problem, section) = problem_from_str("[load]\np_max_kPa = 10\n[fidelity]\nmesh = \"12x4x1\"\n[sweep]\nr_mm = [3.0]\nl_mm = [12]\nalpha_deg = [60]\n", "t", &[]).unwrap();
         let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap();
         let v = cfg.problem.validate().unwrap();
         let opts = cfg.problem.scene_options(&v);

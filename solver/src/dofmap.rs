@@ -154,10 +154,7 @@ pub struct BodyKin {
 pub fn rotation<D: Scalar>(psi: [D; 3]) -> [[D; 3]; 3] {
     let s = psi[0] * psi[0] + psi[1] * psi[1] + psi[2] * psi[2];
     let (a, b) = if s.re() < 1e-2 {
-        (
-            D::one() - s / 6.0 + s * s / 120.0 - s * s * s / 5040.0 + s * s * s * s / 362880.0,
-            D::from(0.5) - s / 24.0 + s * s / 720.0 - s * s * s / 40320.0 + s * s * s * s / 3628800.0,
-        )
+        (D::one() - s / 6.0 + s * s / 120.0 - s * s * s / 5040.0 + s * s * s * s / 362880.0, D::from(0.5) - s / 24.0 + s * s / 720.0 - s * s * s / 40320.0 + s * s * s * s / 3628800.0)
     } else {
         let n = s.sqrt();
         (n.sin() / n, (D::one() - n.cos()) / s)
@@ -210,6 +207,17 @@ impl BodyKin {
 }
 
 impl DofMap {
+    /// The nodes whose three displacement components are all free unknowns, with those
+    /// unknowns' indices (x, y, z).
+    pub fn free_nodes(&self) -> Vec<(usize, [usize; 3])> {
+        (0..self.comps.len() / 3)
+            .filter_map(|n| match (self.comps[3 * n], self.comps[3 * n + 1], self.comps[3 * n + 2]) {
+                (Comp::Free(a), Comp::Free(b), Comp::Free(c)) => Some((n, [a as usize, b as usize, c as usize])),
+                _ => None,
+            })
+            .collect()
+    }
+
     /// Compile the constraints of a mesh with reference coordinates `x0`.
     pub fn build(x0: &[[f64; 3]], cons: &Constraints) -> Result<DofMap, ConstraintError> {
         let n_nodes = x0.len();
@@ -385,18 +393,7 @@ impl DofMap {
             };
             periodic_dofs.push((twist_slot, shift));
         }
-        Ok(DofMap {
-            comps,
-            terms,
-            n_free: n_red,
-            body_dofs,
-            bodies: cons.bodies.clone(),
-            presc_targets,
-            presc_nodes,
-            periodic: cons.periodic.clone(),
-            periodic_dofs,
-            per_pairs,
-        })
+        Ok(DofMap { comps, terms, n_free: n_red, body_dofs, bodies: cons.bodies.clone(), presc_targets, presc_nodes, periodic: cons.periodic.clone(), periodic_dofs, per_pairs })
     }
 
     /// Number of reduced unknowns (free nodal DOFs + free rigid-body DOFs).
@@ -447,10 +444,7 @@ impl DofMap {
                 u[node][c] = match self.comps[3 * node + c] {
                     Comp::Free(k) => q[k as usize],
                     Comp::Presc(s) => presc[s as usize],
-                    Comp::Lin(s, l) => self.terms[s as usize..(s as usize + l as usize)]
-                        .iter()
-                        .map(|(k, cf)| cf * q[*k as usize])
-                        .sum(),
+                    Comp::Lin(s, l) => self.terms[s as usize..(s as usize + l as usize)].iter().map(|(k, cf)| cf * q[*k as usize]).sum(),
                     Comp::Rigid(b) => {
                         let body = &self.bodies[b as usize];
                         let d = sub(x0[node], body.reference);
@@ -620,9 +614,7 @@ mod tests {
         // two nodes stacked on z, and one off-axis
         let x0 = [[1.0, 0.0, 0.0], [1.0, 0.0, 2.0], [0.0, 1.0, 2.0]];
         let per = |pairs: Vec<(usize, usize)>, angle0: f64, shift: DofSpec| Periodic { pairs, angle0, twist: 0.1, shift };
-        let build = |p: Periodic, presc: Vec<(usize, usize, f64)>| {
-            DofMap::build(&x0, &Constraints { prescribed: presc, periodic: vec![p], ..Default::default() })
-        };
+        let build = |p: Periodic, presc: Vec<(usize, usize, f64)>| DofMap::build(&x0, &Constraints { prescribed: presc, periodic: vec![p], ..Default::default() });
         assert!(build(per(vec![(0, 1)], 0.0, DofSpec::Free), vec![]).is_ok());
         // node 2 is node 0 rotated by 90°
         assert!(build(per(vec![(0, 2)], std::f64::consts::FRAC_PI_2, DofSpec::Free), vec![]).is_ok());

@@ -93,13 +93,7 @@ struct QpData<D> {
     q: [f64; 4],
 }
 
-fn qp_data<D: Scalar>(
-    rule: &HexRule,
-    gp: usize,
-    x0: &[[D; 3]],
-    u: &[[D; 3]],
-    q: [f64; 4],
-) -> Result<QpData<D>, ElementError> {
+fn qp_data<D: Scalar>(rule: &HexRule, gp: usize, x0: &[[D; 3]], u: &[[D; 3]], q: [f64; 4]) -> Result<QpData<D>, ElementError> {
     let dn = &rule.dn[gp];
     let nn = dn.len();
     let mut jac: M3<D> = [[D::zero(); 3]; 3];
@@ -141,12 +135,7 @@ fn qp_data<D: Scalar>(
 }
 
 /// Projection data: (θ at each qp, p̃ at each qp, M⁻¹ (np×np)).
-fn project<D: Scalar, M: Hyperelastic>(
-    ps: PressureSpace,
-    mat: &M,
-    params: &[D],
-    qp: &[QpData<D>],
-) -> Result<(Vec<D>, Vec<D>, Vec<D>), ElementError> {
+fn project<D: Scalar, M: Hyperelastic>(ps: PressureSpace, mat: &M, params: &[D], qp: &[QpData<D>]) -> Result<(Vec<D>, Vec<D>, Vec<D>), ElementError> {
     let np = ps.dim();
     if np == 0 {
         let theta: Vec<D> = qp.iter().map(|d| d.j).collect();
@@ -207,27 +196,12 @@ fn project_field<M: Hyperelastic>(ps: PressureSpace, mat: &M, params: &[f64], qp
     (th, pt)
 }
 
-fn gather<D: Scalar>(
-    form: &Formulation,
-    rule: &HexRule,
-    x0: &[[D; 3]],
-    u: &[[D; 3]],
-) -> Result<Vec<QpData<D>>, ElementError> {
-    (0..rule.weights.len())
-        .map(|gp| qp_data(rule, gp, x0, u, form.pressure.basis(rule.points[gp])))
-        .collect()
+fn gather<D: Scalar>(form: &Formulation, rule: &HexRule, x0: &[[D; 3]], u: &[[D; 3]]) -> Result<Vec<QpData<D>>, ElementError> {
+    (0..rule.weights.len()).map(|gp| qp_data(rule, gp, x0, u, form.pressure.basis(rule.points[gp]))).collect()
 }
 
 /// Element energy and internal force vector f = ∂E/∂u (3·nn, node-major), generic over the scalar.
-pub fn residual<D: Scalar, M: Hyperelastic>(
-    form: &Formulation,
-    rule: &HexRule,
-    mat: &M,
-    params: &[D],
-    x0: &[[D; 3]],
-    u: &[[D; 3]],
-    f_out: &mut [D],
-) -> Result<ElementInfo<D>, ElementError> {
+pub fn residual<D: Scalar, M: Hyperelastic>(form: &Formulation, rule: &HexRule, mat: &M, params: &[D], x0: &[[D; 3]], u: &[[D; 3]], f_out: &mut [D]) -> Result<ElementInfo<D>, ElementError> {
     let nn = x0.len();
     let qp = gather(form, rule, x0, u)?;
     let (theta, pt, _) = project(form.pressure, mat, params, &qp)?;
@@ -247,8 +221,7 @@ pub fn residual<D: Scalar, M: Hyperelastic>(
         let mut p: M3<D> = [[D::zero(); 3]; 3];
         for i in 0..3 {
             for cap in 0..3 {
-                p[i][cap] = w1 * jm23 * (d.f[i][cap] * 2.0 - i1 * d.finv[cap][i] * (2.0 / 3.0))
-                    + pt[gi] * d.j * d.finv[cap][i];
+                p[i][cap] = w1 * jm23 * (d.f[i][cap] * 2.0 - i1 * d.finv[cap][i] * (2.0 / 3.0)) + pt[gi] * d.j * d.finv[cap][i];
             }
         }
         for a in 0..nn {
@@ -262,6 +235,12 @@ pub fn residual<D: Scalar, M: Hyperelastic>(
         return Err(ElementError::NonFinite(0));
     }
     Ok(ElementInfo { energy, min_det_f: min_j })
+}
+
+thread_local! {
+    /// Scratch matrices of [`tangent_mixed`] (Gs, R, M), kept per thread between elements.
+    static KERNEL_BUFFERS: std::cell::RefCell<(faer::Mat<f64>, faer::Mat<f64>, faer::Mat<f64>)> =
+        std::cell::RefCell::new((faer::Mat::new(), faer::Mat::new(), faer::Mat::new()));
 }
 
 /// Element energy, internal force f (3nn) and tangent K (3nn × 3nn, row-major, symmetric).
@@ -339,125 +318,129 @@ pub fn tangent_mixed<M: Hyperelastic>(
         }
     };
     f_out.iter_mut().for_each(|v| *v = 0.0);
-    k_out.iter_mut().for_each(|v| *v = 0.0);
     let np = form.pressure.dim();
+    let nq = qp.len();
     let mut bv = vec![0.0; np * nd];
     let mut hmat = vec![0.0; np * np];
     let mut energy = 0.0;
     let mut min_j = f64::INFINITY;
     let mut sg = vec![[0.0f64; 3]; nn]; // spatial gradients g_a = F^-T G_a
-    let mut ha = vec![0.0f64; 27];
-    for (gi, d) in qp.iter().enumerate() {
-        min_j = min_j.min(d.j).min(theta[gi]);
-        let fm = &d.f;
-        let fi = &d.finv;
-        let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
-        let jm23 = d.j.powf(-2.0 / 3.0);
-        let i1b = jm23 * i1;
-        let [w, w1, w2] = mat.w_iso(params, i1b);
-        let uv = mat.u_vol(params, theta[gi])[0];
-        let upp = mat.u_vol(params, theta_k[gi])[2];
-        energy += (w + uv) * d.wj0;
-        // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
-        let mut gb = [[0.0; 3]; 3];
-        for i in 0..3 {
-            for cap in 0..3 {
-                gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
-            }
+                                        // K_ab[i][k] = Σ_qp Σ_JL G_aJ w A[iJ][kL] G_bL, as six matrix products over all quadrature
+                                        // points at once: with Gs = [G_1 … G_nq] (nn × 3nq) and R_ik the stacked w A_ik G_qpᵀ
+                                        // (3nq × nn), M_ik = Gs R_ik, K[3a+i][3b+k] = M_ik[a][b] and M_ki = M_ikᵀ (A symmetric)
+    const PAIRS: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+    KERNEL_BUFFERS.with(|cell| {
+        let mut bufs = cell.borrow_mut();
+        let (gs, rk, m) = &mut *bufs;
+        // (every entry of the three is overwritten below)
+        if gs.nrows() != nn || gs.ncols() != 3 * nq {
+            *gs = faer::Mat::<f64>::zeros(nn, 3 * nq);
+            *rk = faer::Mat::<f64>::zeros(3 * nq, 6 * nn);
+            *m = faer::Mat::<f64>::zeros(nn, 6 * nn);
         }
-        let mut a = [[0.0f64; 9]; 9];
-        for i in 0..3 {
-            for cj in 0..3 {
-                for k in 0..3 {
-                    for cl in 0..3 {
-                        let dik = if i == k && cj == cl { 2.0 } else { 0.0 };
-                        let d2 = jm23
-                            * (dik - (4.0 / 3.0) * (fm[i][cj] * fi[cl][k] + fm[k][cl] * fi[cj][i])
-                                + (4.0 / 9.0) * i1 * fi[cj][i] * fi[cl][k]
-                                + (2.0 / 3.0) * i1 * fi[cj][k] * fi[cl][i]);
-                        a[3 * i + cj][3 * k + cl] = w2 * gb[i][cj] * gb[k][cl] + w1 * d2;
-                    }
+        for (gi, d) in qp.iter().enumerate() {
+            min_j = min_j.min(d.j).min(theta[gi]);
+            let fm = &d.f;
+            let fi = &d.finv;
+            let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
+            let jm23 = d.j.powf(-2.0 / 3.0);
+            let i1b = jm23 * i1;
+            let [w, w1, w2] = mat.w_iso(params, i1b);
+            let uv = mat.u_vol(params, theta[gi])[0];
+            let upp = mat.u_vol(params, theta_k[gi])[2];
+            energy += (w + uv) * d.wj0;
+            // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
+            let mut gb = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for cap in 0..3 {
+                    gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
                 }
             }
-        }
-        let wj0 = d.wj0;
-        let pj = pt[gi] * d.j;
-        let pj_k = pt_k[gi] * d.j;
-        for b in 0..nn {
-            let gbv = d.g[b];
+            let mut a = [[0.0f64; 9]; 9];
             for i in 0..3 {
-                sg[b][i] = fi[0][i] * gbv[0] + fi[1][i] * gbv[1] + fi[2][i] * gbv[2];
-            }
-        }
-        // residual
-        for a_ in 0..nn {
-            let ga = d.g[a_];
-            for i in 0..3 {
-                let piso = w1 * (gb[i][0] * ga[0] + gb[i][1] * ga[1] + gb[i][2] * ga[2]);
-                f_out[3 * a_ + i] += (piso + pj * sg[a_][i]) * wj0;
-            }
-        }
-        // fold the volumetric geometric term p̃J(g_a⊗g_b − g_b⊗g_a) (and, without projection,
-        // U''J² g_a⊗g_b) into the material-form tangent A
-        for i in 0..3 {
-            for cj in 0..3 {
-                for k in 0..3 {
-                    for cl in 0..3 {
-                        let mut v = pj_k * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
-                        if np == 0 {
-                            v += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
+                for cj in 0..3 {
+                    for k in 0..3 {
+                        for cl in 0..3 {
+                            let dik = if i == k && cj == cl { 2.0 } else { 0.0 };
+                            let d2 = jm23 * (dik - (4.0 / 3.0) * (fm[i][cj] * fi[cl][k] + fm[k][cl] * fi[cj][i]) + (4.0 / 9.0) * i1 * fi[cj][i] * fi[cl][k] + (2.0 / 3.0) * i1 * fi[cj][k] * fi[cl][i]);
+                            a[3 * i + cj][3 * k + cl] = w2 * gb[i][cj] * gb[k][cl] + w1 * d2;
                         }
-                        a[3 * i + cj][3 * k + cl] += v;
                     }
                 }
             }
-        }
-        // K_ab[i][k] += Σ_JL G_aJ A[iJ][kL] G_bL w, upper block triangle b ≥ a (mirrored below)
-        for a_ in 0..nn {
-            let ga = d.g[a_];
-            for i in 0..3 {
-                for k in 0..3 {
-                    for cl in 0..3 {
-                        ha[9 * i + 3 * k + cl] = (ga[0] * a[3 * i][3 * k + cl]
-                            + ga[1] * a[3 * i + 1][3 * k + cl]
-                            + ga[2] * a[3 * i + 2][3 * k + cl])
-                            * wj0;
-                    }
-                }
-            }
-            for b in a_..nn {
+            let wj0 = d.wj0;
+            let pj = pt[gi] * d.j;
+            let pj_k = pt_k[gi] * d.j;
+            for b in 0..nn {
                 let gbv = d.g[b];
                 for i in 0..3 {
-                    let row = (3 * a_ + i) * nd + 3 * b;
-                    let h = &ha[9 * i..9 * i + 9];
-                    k_out[row] += h[0] * gbv[0] + h[1] * gbv[1] + h[2] * gbv[2];
-                    k_out[row + 1] += h[3] * gbv[0] + h[4] * gbv[1] + h[5] * gbv[2];
-                    k_out[row + 2] += h[6] * gbv[0] + h[7] * gbv[1] + h[8] * gbv[2];
+                    sg[b][i] = fi[0][i] * gbv[0] + fi[1][i] * gbv[1] + fi[2][i] * gbv[2];
                 }
             }
-        }
-        if np > 0 {
-            for r in 0..np {
-                for b in 0..nn {
-                    for i in 0..3 {
-                        bv[r * nd + 3 * b + i] += d.q[r] * d.j * sg[b][i] * wj0;
+            // residual
+            for a_ in 0..nn {
+                let ga = d.g[a_];
+                for i in 0..3 {
+                    let piso = w1 * (gb[i][0] * ga[0] + gb[i][1] * ga[1] + gb[i][2] * ga[2]);
+                    f_out[3 * a_ + i] += (piso + pj * sg[a_][i]) * wj0;
+                }
+            }
+            // fold the volumetric geometric term p̃J(g_a⊗g_b − g_b⊗g_a) (and, without projection,
+            // U''J² g_a⊗g_b) into the material-form tangent A
+            for i in 0..3 {
+                for cj in 0..3 {
+                    for k in 0..3 {
+                        for cl in 0..3 {
+                            let mut v = pj_k * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
+                            if np == 0 {
+                                v += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
+                            }
+                            a[3 * i + cj][3 * k + cl] += v;
+                        }
                     }
                 }
-                for s in 0..np {
-                    hmat[r * np + s] += upp * d.q[r] * d.q[s] * wj0;
+            }
+            for a_ in 0..nn {
+                for cj in 0..3 {
+                    gs[(a_, 3 * gi + cj)] = d.g[a_][cj];
+                }
+            }
+            for (pi, &(i, k)) in PAIRS.iter().enumerate() {
+                for cj in 0..3 {
+                    let arow = &a[3 * i + cj];
+                    let (w0, w1, w2) = (arow[3 * k] * wj0, arow[3 * k + 1] * wj0, arow[3 * k + 2] * wj0);
+                    for b in 0..nn {
+                        let gb = d.g[b];
+                        rk[(3 * gi + cj, pi * nn + b)] = w0 * gb[0] + w1 * gb[1] + w2 * gb[2];
+                    }
+                }
+            }
+            if np > 0 {
+                for r in 0..np {
+                    for b in 0..nn {
+                        for i in 0..3 {
+                            bv[r * nd + 3 * b + i] += d.q[r] * d.j * sg[b][i] * wj0;
+                        }
+                    }
+                    for s in 0..np {
+                        hmat[r * np + s] += upp * d.q[r] * d.q[s] * wj0;
+                    }
                 }
             }
         }
-    }
-    for a_ in 0..nn {
-        for b in a_ + 1..nn {
-            for i in 0..3 {
-                for k in 0..3 {
-                    k_out[(3 * b + k) * nd + 3 * a_ + i] = k_out[(3 * a_ + i) * nd + 3 * b + k];
+        faer::linalg::matmul::matmul(m.as_mut(), faer::Accum::Replace, gs.as_ref(), rk.as_ref(), 1.0, faer::Par::Seq);
+        for (pi, &(i, k)) in PAIRS.iter().enumerate() {
+            for a_ in 0..nn {
+                for b in 0..nn {
+                    let v = m[(a_, pi * nn + b)];
+                    k_out[(3 * a_ + i) * nd + 3 * b + k] = v;
+                    if i != k {
+                        k_out[(3 * b + k) * nd + 3 * a_ + i] = v;
+                    }
                 }
             }
         }
-    }
+    });
     if np > 0 {
         // K += Bvᵀ (M⁻¹ H M⁻¹) Bv
         let mut c = vec![0.0; np * np];
@@ -503,14 +486,7 @@ pub fn tangent_mixed<M: Hyperelastic>(
 
 /// Volume-averaged Cauchy stress of an element (MPa), σ = J⁻¹ P Fᵀ with the element's discrete
 /// pressure, for post-processing.
-pub fn mean_cauchy_stress<M: Hyperelastic>(
-    form: &Formulation,
-    rule: &HexRule,
-    mat: &M,
-    params: &[f64],
-    x0: &[[f64; 3]],
-    u: &[[f64; 3]],
-) -> Result<[[f64; 3]; 3], ElementError> {
+pub fn mean_cauchy_stress<M: Hyperelastic>(form: &Formulation, rule: &HexRule, mat: &M, params: &[f64], x0: &[[f64; 3]], u: &[[f64; 3]]) -> Result<[[f64; 3]; 3], ElementError> {
     let qp = gather(form, rule, x0, u)?;
     let (_, pt, _) = project(form.pressure, mat, params, &qp)?;
     let mut sig = [[0.0; 3]; 3];
@@ -566,9 +542,7 @@ mod tests {
     }
 
     fn disp(x0: &[[f64; 3]], s: f64) -> Vec<[f64; 3]> {
-        x0.iter()
-            .map(|p| [s * (0.2 * p[1] + 0.1 * p[0] * p[2]), s * (-0.15 * p[0] + 0.05 * p[2] * p[2]), s * (0.12 * p[0] * p[1])])
-            .collect()
+        x0.iter().map(|p| [s * (0.2 * p[1] + 0.1 * p[0] * p[2]), s * (-0.15 * p[0] + 0.05 * p[2] * p[2]), s * (0.12 * p[0] * p[1])]).collect()
     }
 
     #[test]

@@ -7,15 +7,15 @@ use crate::material::{Hyperelastic, Material};
 use crate::mesh::{Face, Mesh};
 use crate::shape::HexRule;
 use crate::surface::{self, Cavity};
-use faer::sparse::linalg::solvers::{Lu, SymbolicLu};
-use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, CholeskySymbolicParams, IntranodeLbltRef, LltRef, SymbolicCholesky, SymmetricOrdering};
+use faer::sparse::linalg::solvers::{Lu, SymbolicLu};
+use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use faer::{Conj, Par};
-use std::sync::Arc;
 use faer::{Mat, Side};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Errors building a model.
 #[derive(Debug, thiserror::Error)]
@@ -42,24 +42,14 @@ pub struct Loads {
 
 impl Loads {
     pub fn zero(model: &Model) -> Self {
-        Loads {
-            pressure: 0.0,
-            presc: vec![0.0; model.dofs.presc_targets.len()],
-            body_forces: vec![[0.0; 3]; model.dofs.bodies.len()],
-            nodal_forces: Vec::new(),
-        }
+        Loads { pressure: 0.0, presc: vec![0.0; model.dofs.presc_targets.len()], body_forces: vec![[0.0; 3]; model.dofs.bodies.len()], nodal_forces: Vec::new() }
     }
     /// Linear interpolation a + t (b − a).
     pub fn lerp(a: &Loads, b: &Loads, t: f64) -> Loads {
         Loads {
             pressure: a.pressure + t * (b.pressure - a.pressure),
             presc: a.presc.iter().zip(&b.presc).map(|(x, y)| x + t * (y - x)).collect(),
-            body_forces: a
-                .body_forces
-                .iter()
-                .zip(&b.body_forces)
-                .map(|(x, y)| [x[0] + t * (y[0] - x[0]), x[1] + t * (y[1] - x[1]), x[2] + t * (y[2] - x[2])])
-                .collect(),
+            body_forces: a.body_forces.iter().zip(&b.body_forces).map(|(x, y)| [x[0] + t * (y[0] - x[0]), x[1] + t * (y[1] - x[1]), x[2] + t * (y[2] - x[2])]).collect(),
             nodal_forces: {
                 // an empty vector stands for zeros
                 let n = a.nodal_forces.len().max(b.nodal_forces.len());
@@ -70,21 +60,59 @@ impl Loads {
     }
 }
 
-/// Upper-triangular CSC pattern of the reduced tangent.
+/// Lower-triangular CSC pattern of the reduced tangent, stored in the fill-reducing order of
+/// its factorisation (unknown i of the model is row/column `inv[i]`), so that the numeric
+/// factorisations need no permutation of the matrix.
 #[derive(Clone, Debug)]
 struct Pattern {
     n: usize,
     col_ptr: Vec<u32>,
     row_idx: Vec<u32>,
+    /// fwd[new] = old, inv[old] = new
+    fwd: Arc<Vec<u32>>,
+    inv: Arc<Vec<u32>>,
 }
 
 impl Pattern {
+    /// The slot of entry (r, c) of the model's unknowns.
     #[inline]
     fn slot(&self, r: u32, c: u32) -> usize {
-        let (r, c) = if r <= c { (r, c) } else { (c, r) };
+        let (r, c) = (self.inv[r as usize], self.inv[c as usize]);
+        let (r, c) = if r >= c { (r, c) } else { (c, r) };
         let s = self.col_ptr[c as usize] as usize;
         let e = self.col_ptr[c as usize + 1] as usize;
         s + self.row_idx[s..e].binary_search(&r).expect("entry in pattern")
+    }
+
+    /// The same pattern renumbered by `fwd` (new → old).
+    fn permuted(&self, fwd: Vec<u32>) -> Pattern {
+        let n = self.n;
+        let mut inv = vec![0u32; n];
+        for (new, &old) in fwd.iter().enumerate() {
+            inv[old as usize] = new as u32;
+        }
+        let mut cols: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for c in 0..n {
+            for s in self.col_ptr[c] as usize..self.col_ptr[c + 1] as usize {
+                let r = self.row_idx[s] as usize;
+                let (a, b) = (inv[self.fwd[r] as usize], inv[self.fwd[c] as usize]);
+                // lower triangle: column min(a, b), row max(a, b)
+                let (a, b) = if a <= b { (a, b) } else { (b, a) };
+                cols[a as usize].push(b);
+            }
+        }
+        let mut col_ptr = vec![0u32];
+        let mut row_idx = Vec::with_capacity(self.row_idx.len());
+        for col in cols.iter_mut() {
+            col.sort_unstable();
+            row_idx.extend_from_slice(col);
+            col_ptr.push(row_idx.len() as u32);
+        }
+        Pattern { n, col_ptr, row_idx, fwd: Arc::new(fwd), inv: Arc::new(inv) }
+    }
+
+    fn symbolic(&self) -> SymbolicSparseColMat<u32> {
+        SymbolicSparseColMat::<u32>::new_checked(self.n, self.n, self.col_ptr.clone(), None, self.row_idx.clone())
     }
 }
 
@@ -142,6 +170,10 @@ pub struct Model {
     pub chunk: usize,
     /// Per-element scatter tables (built on first use when they fit in memory).
     scatter_cache: std::sync::OnceLock<Option<Vec<ElemScatter>>>,
+    /// Reusable element-matrix buffers of the assembly.
+    buffers: std::sync::Mutex<Vec<Vec<f64>>>,
+    /// Scatter tables of the cavity faces and edges.
+    cavity_scatter: std::sync::OnceLock<Option<Vec<ElemScatter>>>,
 }
 
 /// Where each pair of an element's (local DOF → reduced DOF) terms lands in the CSC values.
@@ -152,13 +184,7 @@ struct ElemScatter {
 }
 
 impl Model {
-    pub fn new(
-        mesh: Mesh,
-        form: Formulation,
-        material: Material,
-        constraints: &Constraints,
-        cavity_faces: Option<&[Face]>,
-    ) -> Result<Model, ModelError> {
+    pub fn new(mesh: Mesh, form: Formulation, material: Material, constraints: &Constraints, cavity_faces: Option<&[Face]>) -> Result<Model, ModelError> {
         if form.kind != mesh.kind {
             return Err(ModelError::Mesh(format!("formulation {:?} on a {:?} mesh", form.kind, mesh.kind)));
         }
@@ -166,7 +192,7 @@ impl Model {
         let cavity = cavity_faces.map(|f| Cavity::new(&mesh, f));
         let pattern = build_pattern(&mesh, &dofs);
         let ordering = Ordering::default();
-        let symbolic = symbolic_analysis(&pattern, ordering)?;
+        let (pattern, symbolic) = symbolic_analysis(&pattern, ordering)?;
         let rule = form.rule();
         let params = material.params();
         Ok(Model {
@@ -183,13 +209,20 @@ impl Model {
             symbolic_lu: std::sync::OnceLock::new(),
             chunk: 32,
             scatter_cache: std::sync::OnceLock::new(),
+            buffers: std::sync::Mutex::new(Vec::new()),
+            cavity_scatter: std::sync::OnceLock::new(),
         })
     }
 
     /// Redo the symbolic analysis with another fill-reducing ordering.
     pub fn set_ordering(&mut self, ordering: Ordering) -> Result<(), ModelError> {
-        self.symbolic = symbolic_analysis(&self.pattern, ordering)?;
+        let (pattern, symbolic) = symbolic_analysis(&self.pattern, ordering)?;
+        self.pattern = pattern;
+        self.symbolic = symbolic;
         self.ordering = ordering;
+        self.scatter_cache = std::sync::OnceLock::new();
+        self.cavity_scatter = std::sync::OnceLock::new();
+        self.symbolic_lu = std::sync::OnceLock::new();
         Ok(())
     }
 
@@ -239,36 +272,65 @@ impl Model {
         let wave = 4 * rayon::current_num_threads().max(1);
         let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); nd];
         for wave_chunks in chunks.chunks(wave) {
-            let results: Vec<Result<Vec<(f64, f64, Vec<f64>, Vec<f64>)>, ElementError>> = wave_chunks
+            // per chunk: (energy, min det F) per element, and the element vectors / matrices in
+            // one buffer each (taken from the model's pool: the kernels overwrite them)
+            type ChunkOut = (Vec<(f64, f64)>, Vec<f64>, Vec<f64>);
+            let results: Vec<Result<ChunkOut, ElementError>> = wave_chunks
                 .par_iter()
                 .map(|&(s, e)| {
-                    let mut out = Vec::with_capacity(e - s);
+                    let mut info = Vec::with_capacity(e - s);
+                    let mut fbuf = vec![0.0; (e - s) * nd];
+                    let mut kbuf = if want_k { self.take_buffer((e - s) * nd * nd) } else { Vec::new() };
+                    let mut xe = Vec::with_capacity(nn);
+                    let mut ue = Vec::with_capacity(nn);
+                    let mut ul = Vec::with_capacity(nn);
                     for el in s..e {
                         let conn = self.mesh.element(el);
-                        let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
-                        let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
-                        let mut f = vec![0.0; nd];
-                        let info = if want_k {
-                            let mut k = vec![0.0; nd * nd];
-                            let ul: Option<Vec<[f64; 3]>> = u_lin.as_ref().map(|ul| conn.iter().map(|&n| ul[n]).collect());
-                            let info = element::tangent_mixed(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, ul.as_deref(), &mut f, &mut k)
-                                .map_err(|e| relabel(e, el))?;
-                            out.push((info.energy, info.min_det_f, f, k));
-                            continue;
+                        xe.clear();
+                        xe.extend(conn.iter().map(|&n| x0[n]));
+                        ue.clear();
+                        ue.extend(conn.iter().map(|&n| u[n]));
+                        let off = el - s;
+                        let f = &mut fbuf[off * nd..(off + 1) * nd];
+                        let res = if want_k {
+                            let k = &mut kbuf[off * nd * nd..(off + 1) * nd * nd];
+                            let lin = u_lin.as_ref().map(|l| {
+                                ul.clear();
+                                ul.extend(conn.iter().map(|&n| l[n]));
+                                ul.as_slice()
+                            });
+                            element::tangent_mixed(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, lin, f, k)
                         } else {
-                            element::residual(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, &mut f)
-                                .map_err(|e| relabel(e, el))?
+                            element::residual(&self.form, &self.rule, &self.material, &self.params, &xe, &ue, f)
                         };
-                        out.push((info.energy, info.min_det_f, f, Vec::new()));
+                        match res {
+                            Ok(i) => info.push((i.energy, i.min_det_f)),
+                            Err(err) => {
+                                self.give_buffer(kbuf);
+                                return Err(relabel(err, el));
+                            }
+                        }
                     }
-                    Ok(out)
+                    Ok((info, fbuf, kbuf))
                 })
                 .collect();
+            let mut failure = None;
             for (ci, res) in results.into_iter().enumerate() {
-                let res = res?;
+                let (info, fbuf, kbuf) = match res {
+                    Ok(r) => r,
+                    Err(e) => {
+                        failure.get_or_insert(e);
+                        continue;
+                    }
+                };
+                if failure.is_some() {
+                    self.give_buffer(kbuf);
+                    continue;
+                }
                 let start = wave_chunks[ci].0;
-                for (off, (en, mj, f, k)) in res.into_iter().enumerate() {
+                for (off, &(en, mj)) in info.iter().enumerate() {
                     let el = start + off;
+                    let f = &fbuf[off * nd..(off + 1) * nd];
                     energy += en;
                     f_int_sq += f.iter().map(|v| v * v).sum::<f64>();
                     min_det_f = min_det_f.min(mj);
@@ -279,13 +341,18 @@ impl Model {
                         }
                     }
                     if let Some(kv) = kv.as_mut() {
+                        let k = &kbuf[off * nd * nd..(off + 1) * nd * nd];
                         self.fill_rows(conn, &kin, &mut rows);
                         match self.scatter_tables() {
-                            Some(tables) => scatter_cached(&tables[el], &rows, &k, kv),
-                            None => self.scatter(&rows, &k, kv),
+                            Some(tables) => scatter_cached(&tables[el], &rows, k, kv),
+                            None => self.scatter(&rows, k, kv),
                         }
                     }
                 }
+                self.give_buffer(kbuf);
+            }
+            if let Some(e) = failure {
+                return Err(e);
             }
         }
         // cavity pressure: −p ∂V/∂x, tangent −p ∂²V/∂x²
@@ -324,7 +391,10 @@ impl Model {
                         h.iter_mut().for_each(|v| *v *= -p);
                         let mut rws: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
                         self.fill_rows(nodes, &kin, &mut rws);
-                        self.scatter(&rws, &h, kv);
+                        match self.cavity_scatter_tables() {
+                            Some(tables) => scatter_cached(&tables[idx], &rws, &h, kv),
+                            None => self.scatter(&rws, &h, kv),
+                        }
                     }
                 }
             }
@@ -380,27 +450,14 @@ impl Model {
                 }
                 for a in 0..3 {
                     for bb in a..3 {
-                        if let (crate::dofmap::BodyDof::Free(i), crate::dofmap::BodyDof::Free(j)) =
-                            (self.dofs.body_dofs[b][3 + a], self.dofs.body_dofs[b][3 + bb])
-                        {
+                        if let (crate::dofmap::BodyDof::Free(i), crate::dofmap::BodyDof::Free(j)) = (self.dofs.body_dofs[b][3 + a], self.dofs.body_dofs[b][3 + bb]) {
                             kv[self.pattern.slot(i as u32, j as u32)] += hb[a][bb];
                         }
                     }
                 }
             }
         }
-        Ok(Assembled {
-            r,
-            k: kv,
-            r_full,
-            f_scale: f_int_sq.sqrt(),
-            energy,
-            volume,
-            dvol,
-            min_det_f,
-            u,
-            kin,
-        })
+        Ok(Assembled { r, k: kv, r_full, f_scale: f_int_sq.sqrt(), energy, volume, dvol, min_det_f, u, kin })
     }
 
     /// The reduced load of a unit cavity pressure: ∂V/∂q (`dvol` of an assembly), less each rigid
@@ -442,6 +499,25 @@ impl Model {
         out
     }
 
+    /// A scratch buffer of at least `len` values (contents unspecified) from the model's pool.
+    fn take_buffer(&self, len: usize) -> Vec<f64> {
+        let mut b = self.buffers.lock().ok().and_then(|mut p| p.pop()).unwrap_or_default();
+        if b.len() < len {
+            b.resize(len, 0.0);
+        }
+        b
+    }
+
+    fn give_buffer(&self, b: Vec<f64>) {
+        if b.capacity() > 0 {
+            if let Ok(mut p) = self.buffers.lock() {
+                if p.len() < 64 {
+                    p.push(b);
+                }
+            }
+        }
+    }
+
     fn fill_rows(&self, nodes: &[usize], kin: &[BodyKin], rows: &mut Vec<Vec<(u32, f64)>>) {
         let x0 = &self.mesh.nodes;
         rows.resize(3 * nodes.len(), Vec::new());
@@ -455,43 +531,54 @@ impl Model {
     }
 
     fn scatter_tables(&self) -> Option<&Vec<ElemScatter>> {
-        self.scatter_cache
+        self.scatter_cache.get_or_init(|| self.build_scatter((0..self.mesh.n_elements()).map(|e| self.mesh.element(e)))).as_ref()
+    }
+
+    /// Scatter tables of the cavity's faces, then its edges (the load stiffness −p ∂²V/∂x²).
+    fn cavity_scatter_tables(&self) -> Option<&Vec<ElemScatter>> {
+        self.cavity_scatter
             .get_or_init(|| {
-                let nd = 3 * self.mesh.kind.nodes_per_element();
-                let mut total = 0usize;
-                let mut out = Vec::with_capacity(self.mesh.n_elements());
-                let mut pat = Vec::new();
-                for e in 0..self.mesh.n_elements() {
-                    let mut local = Vec::with_capacity(nd);
-                    let mut ks = Vec::with_capacity(nd);
-                    for (a, &n) in self.mesh.element(e).iter().enumerate() {
-                        for c in 0..3 {
-                            pat.clear();
-                            self.dofs.row_pattern(n, c, &mut pat);
-                            for &k in &pat {
-                                local.push((3 * a + c) as u16);
-                                ks.push(k);
-                            }
-                        }
-                    }
-                    let nt = ks.len();
-                    total += nt * nt;
-                    if total > 128 << 20 {
-                        return None; // > 512 MB of tables: fall back to searching
-                    }
-                    let mut slots = vec![u32::MAX; nt * nt];
-                    for p in 0..nt {
-                        for q in 0..nt {
-                            if ks[p] <= ks[q] {
-                                slots[p * nt + q] = self.pattern.slot(ks[p], ks[q]) as u32;
-                            }
-                        }
-                    }
-                    out.push(ElemScatter { local, slots });
-                }
-                Some(out)
+                let cav = self.cavity.as_ref()?;
+                self.build_scatter(cav.face_nodes.iter().map(|v| v.as_slice()).chain(cav.edges.iter().map(|e| e.0.as_slice())))
             })
             .as_ref()
+    }
+
+    /// Where each pair of (local DOF → reduced DOF) terms of each node list lands in the CSC
+    /// values; None when the tables would exceed 512 MB (then the slots are searched).
+    fn build_scatter<'a>(&self, lists: impl Iterator<Item = &'a [usize]>) -> Option<Vec<ElemScatter>> {
+        let mut total = 0usize;
+        let mut out = Vec::new();
+        let mut pat = Vec::new();
+        for nodes in lists {
+            let mut local = Vec::with_capacity(3 * nodes.len());
+            let mut ks = Vec::with_capacity(3 * nodes.len());
+            for (a, &n) in nodes.iter().enumerate() {
+                for c in 0..3 {
+                    pat.clear();
+                    self.dofs.row_pattern(n, c, &mut pat);
+                    for &k in &pat {
+                        local.push((3 * a + c) as u16);
+                        ks.push(k);
+                    }
+                }
+            }
+            let nt = ks.len();
+            total += nt * nt;
+            if total > 128 << 20 {
+                return None;
+            }
+            let mut slots = vec![u32::MAX; nt * nt];
+            for p in 0..nt {
+                for q in 0..nt {
+                    if ks[p] <= ks[q] {
+                        slots[p * nt + q] = self.pattern.slot(ks[p], ks[q]) as u32;
+                    }
+                }
+            }
+            out.push(ElemScatter { local, slots });
+        }
+        Some(out)
     }
 
     /// K_red[k,l] += Σ c_i c_j K_e[i][j] over the rows of the local DOFs (upper triangle only).
@@ -519,16 +606,10 @@ impl Model {
         }
     }
 
-    /// The reduced tangent as a faer matrix (upper triangle stored).
-    pub fn matrix(&self, values: Vec<f64>) -> SparseColMat<u32, f64> {
-        let sym = SymbolicSparseColMat::<u32>::new_checked(
-            self.pattern.n,
-            self.pattern.n,
-            self.pattern.col_ptr.clone(),
-            None,
-            self.pattern.row_idx.clone(),
-        );
-        SparseColMat::new(sym, values)
+    /// The reduced tangent as a faer matrix (lower triangle stored, in the factorisation's
+    /// order of the unknowns: entry (i, j) of the model is at (inv[i], inv[j])).
+    fn matrix(&self, values: Vec<f64>) -> SparseColMat<u32, f64> {
+        SparseColMat::new(self.pattern.symbolic(), values)
     }
 
     /// Cholesky factorisation with the stored symbolic analysis (sequential: on the tangents of
@@ -540,8 +621,8 @@ impl Model {
         let mut lv = vec![0.0; sym.len_val()];
         let par = Par::Seq;
         let mut mem = MemBuffer::new(sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()));
-        match sym.factorize_numeric_llt(&mut lv, a.as_ref(), Side::Upper, Default::default(), par, MemStack::new(&mut mem), Default::default()) {
-            Ok(_) => Ok(Factor::Llt(Box::new(LltOwned { sym, values: lv }))),
+        match sym.factorize_numeric_llt(&mut lv, a.as_ref(), Side::Lower, Default::default(), par, MemStack::new(&mut mem), Default::default()) {
+            Ok(_) => Ok(Factor { kind: FactorKind::Llt(LltOwned { sym, values: lv }), fwd: self.pattern.fwd.clone() }),
             Err(_) => Err(SolveError::NotPositiveDefinite),
         }
     }
@@ -566,8 +647,8 @@ impl Model {
         let mut fwd = vec![0u32; n];
         let mut inv = vec![0u32; n];
         let mut mem = MemBuffer::new(sym.factorize_numeric_intranode_lblt_scratch::<f64>(Par::Seq, Default::default()));
-        sym.factorize_numeric_intranode_lblt(&mut lv, &mut subdiag, &mut fwd, &mut inv, a.as_ref(), Side::Upper, Par::Seq, MemStack::new(&mut mem), Default::default());
-        let f = Factor::Lblt(Box::new(Lblt { sym, values: lv, subdiag, fwd, inv }));
+        sym.factorize_numeric_intranode_lblt(&mut lv, &mut subdiag, &mut fwd, &mut inv, a.as_ref(), Side::Lower, Par::Seq, MemStack::new(&mut mem), Default::default());
+        let f = Factor { kind: FactorKind::Lblt(Lblt { sym, values: lv, subdiag, fwd, inv }), fwd: self.pattern.fwd.clone() };
         // accept only if a test solve is backward stable: ‖K x − b‖ ≤ 1e-11 (‖K‖_F ‖x‖ + ‖b‖)
         // (a breakdown on tiny unpivoted pivots gives a much larger backward error)
         let b: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7919) % 13) as f64 / 13.0).collect();
@@ -584,17 +665,37 @@ impl Model {
         (eta <= 1e-11).then_some(f)
     }
 
-    /// y = K x for the tangent given by its upper-triangle values.
-    pub fn sym_matvec(&self, values: &[f64], x: &[f64]) -> Vec<f64> {
+    /// The full symmetric tangent as a dense matrix in the model's order of the unknowns (tests,
+    /// small problems).
+    pub fn dense(&self, values: &[f64]) -> Mat<f64> {
         let n = self.pattern.n;
-        let mut y = vec![0.0; n];
+        let fwd = &self.pattern.fwd;
+        let mut d = Mat::<f64>::zeros(n, n);
         for c in 0..n {
             for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
                 let r = self.pattern.row_idx[s] as usize;
+                let (i, j) = (fwd[r] as usize, fwd[c] as usize);
+                d[(i, j)] = values[s];
+                d[(j, i)] = values[s];
+            }
+        }
+        d
+    }
+
+    /// y = K x for the tangent given by its upper-triangle values.
+    pub fn sym_matvec(&self, values: &[f64], x: &[f64]) -> Vec<f64> {
+        let n = self.pattern.n;
+        let fwd = &self.pattern.fwd;
+        let mut y = vec![0.0; n];
+        for c in 0..n {
+            let oc = fwd[c] as usize;
+            for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
+                let r = self.pattern.row_idx[s] as usize;
+                let or = fwd[r] as usize;
                 let v = values[s];
-                y[r] += v * x[c];
+                y[or] += v * x[oc];
                 if r != c {
-                    y[c] += v * x[r];
+                    y[oc] += v * x[or];
                 }
             }
         }
@@ -634,25 +735,32 @@ impl Model {
         let (sym, src, lu) = lu_sym.as_ref().ok_or(SolveError::Singular)?;
         let vals: Vec<f64> = src.iter().map(|&s| values[s]).collect();
         let a = SparseColMat::new(sym.clone(), vals);
-        Lu::try_new_with_symbolic(lu.clone(), a.as_ref()).map(Factor::Lu).map_err(|_| SolveError::Singular)
+        Lu::try_new_with_symbolic(lu.clone(), a.as_ref()).map(|l| Factor { kind: FactorKind::Lu(l), fwd: self.pattern.fwd.clone() }).map_err(|_| SolveError::Singular)
     }
 }
 
-/// A factorised tangent.
-pub enum Factor {
-    Llt(Box<LltOwned>),
+/// A factorised tangent (in the factorisation's order of the unknowns; [`Factor::solve`] takes
+/// and returns vectors in the model's order).
+pub struct Factor {
+    kind: FactorKind,
+    /// fwd[new] = old
+    fwd: Arc<Vec<u32>>,
+}
+
+enum FactorKind {
+    Llt(LltOwned),
     Lu(Lu<u32, f64>),
-    Lblt(Box<Lblt>),
+    Lblt(Lblt),
 }
 
 /// A Cholesky factorisation (owned storage of faer's supernodal LLᵀ factor).
-pub struct LltOwned {
+struct LltOwned {
     sym: Arc<SymbolicCholesky<u32>>,
     values: Vec<f64>,
 }
 
 /// An LBLᵀ factorisation (owned storage of faer's intranodal Bunch–Kaufman factor).
-pub struct Lblt {
+struct Lblt {
     sym: Arc<SymbolicCholesky<u32>>,
     values: Vec<f64>,
     subdiag: Vec<f64>,
@@ -662,15 +770,19 @@ pub struct Lblt {
 
 impl Factor {
     pub fn solve(&self, b: &[f64]) -> Result<Vec<f64>, SolveError> {
-        let mut m = Mat::<f64>::from_fn(b.len(), 1, |i, _| b[i]);
-        match self {
-            Factor::Llt(f) => {
+        let fwd = &self.fwd;
+        if b.len() != fwd.len() {
+            return Err(SolveError::NonFinite);
+        }
+        let mut m = Mat::<f64>::from_fn(b.len(), 1, |i, _| b[fwd[i] as usize]);
+        match &self.kind {
+            FactorKind::Llt(f) => {
                 let l = LltRef::new(&f.sym, &f.values);
                 let mut mem = MemBuffer::new(f.sym.solve_in_place_scratch::<f64>(1, Par::Seq));
                 l.solve_in_place_with_conj(Conj::No, m.as_mut(), Par::Seq, MemStack::new(&mut mem));
             }
-            Factor::Lu(l) => l.solve_in_place(m.as_mut()),
-            Factor::Lblt(f) => {
+            FactorKind::Lu(l) => l.solve_in_place(m.as_mut()),
+            FactorKind::Lblt(f) => {
                 let n = f.sym.nrows();
                 let perm = faer::perm::PermRef::new_checked(&f.fwd, &f.inv, n);
                 let l = IntranodeLbltRef::new(&f.sym, &f.values, &f.subdiag, perm);
@@ -678,7 +790,10 @@ impl Factor {
                 l.solve_in_place_with_conj(Conj::No, m.as_mut(), Par::Seq, MemStack::new(&mut mem));
             }
         }
-        let x: Vec<f64> = (0..b.len()).map(|i| m[(i, 0)]).collect();
+        let mut x = vec![0.0; b.len()];
+        for (i, &o) in fwd.iter().enumerate() {
+            x[o as usize] = m[(i, 0)];
+        }
         if x.iter().all(|v| v.is_finite()) {
             Ok(x)
         } else {
@@ -690,7 +805,7 @@ impl Factor {
 impl Factor {
     /// Whether this is a Cholesky factor (the tangent was positive definite).
     pub fn is_definite(&self) -> bool {
-        matches!(self, Factor::Llt(_))
+        matches!(self.kind, FactorKind::Llt(_))
     }
 }
 
@@ -716,18 +831,29 @@ impl Default for Ordering {
     }
 }
 
-fn symbolic_analysis(pattern: &Pattern, ordering: Ordering) -> Result<Arc<SymbolicCholesky<u32>>, ModelError> {
-    let sym = SymbolicSparseColMat::<u32>::new_checked(pattern.n, pattern.n, pattern.col_ptr.clone(), None, pattern.row_idx.clone());
-    let err = |e: faer::sparse::FaerError| ModelError::Symbolic(format!("{e:?}"));
-    let res = match ordering {
-        Ordering::Amd => factorize_symbolic_cholesky(sym.as_ref(), Side::Upper, SymmetricOrdering::Amd, CholeskySymbolicParams::default()),
-        Ordering::NestedDissection => {
-            let (fwd, inv) = nested_dissection(pattern).ok_or_else(|| ModelError::Symbolic("nested dissection ordering failed".into()))?;
-            let perm = faer::perm::PermRef::new_checked(&fwd, &inv, pattern.n);
-            factorize_symbolic_cholesky(sym.as_ref(), Side::Upper, SymmetricOrdering::Custom(perm), CholeskySymbolicParams::default())
+/// The pattern renumbered by a fill-reducing ordering, and its symbolic Cholesky analysis (with
+/// the identity ordering: the numeric factorisations then need no permutation).
+fn symbolic_analysis(pattern: &Pattern, ordering: Ordering) -> Result<(Pattern, Arc<SymbolicCholesky<u32>>), ModelError> {
+    // the pattern in the model's own order
+    let identity: Vec<u32> = (0..pattern.n as u32).collect();
+    let original = pattern.permuted(identity);
+    let n = original.n;
+    let fwd: Vec<u32> = match ordering {
+        Ordering::Amd => {
+            let sym = original.symbolic();
+            let mut perm = vec![0u32; n];
+            let mut perm_inv = vec![0u32; n];
+            let mut mem = MemBuffer::new(faer::sparse::linalg::amd::order_scratch::<u32>(n, original.row_idx.len()));
+            faer::sparse::linalg::amd::order(&mut perm, &mut perm_inv, sym.as_ref(), Default::default(), MemStack::new(&mut mem)).map_err(|e| ModelError::Symbolic(format!("{e:?}")))?;
+            perm
         }
+        Ordering::NestedDissection => nested_dissection(&original).ok_or_else(|| ModelError::Symbolic("nested dissection ordering failed".into()))?.0,
     };
-    res.map(Arc::new).map_err(err)
+    let permuted = original.permuted(fwd);
+    // (the analysis reads the upper triangle: the transpose of the stored lower one)
+    let upper = permuted.symbolic().as_ref().transpose().to_col_major().map_err(|e| ModelError::Symbolic(format!("{e:?}")))?;
+    let sym = factorize_symbolic_cholesky(upper.as_ref(), Side::Upper, SymmetricOrdering::Identity, CholeskySymbolicParams::default()).map_err(|e| ModelError::Symbolic(format!("{e:?}")))?;
+    Ok((permuted, Arc::new(sym)))
 }
 
 /// METIS nested-dissection permutation (fwd, inv) of the tangent's graph.
@@ -876,10 +1002,7 @@ fn build_pattern(mesh: &Mesh, dofs: &DofMap) -> Pattern {
         }
     }
     for b in 0..dofs.bodies.len() {
-        let free: Vec<u32> = dofs.body_dofs[b]
-            .iter()
-            .filter_map(|d| if let crate::dofmap::BodyDof::Free(i) = d { Some(*i as u32) } else { None })
-            .collect();
+        let free: Vec<u32> = dofs.body_dofs[b].iter().filter_map(|d| if let crate::dofmap::BodyDof::Free(i) = d { Some(*i as u32) } else { None }).collect();
         for (a, &k) in free.iter().enumerate() {
             for &l in &free[a..] {
                 cols[l.max(k) as usize].push(k.min(l));
@@ -895,7 +1018,8 @@ fn build_pattern(mesh: &Mesh, dofs: &DofMap) -> Pattern {
         row_idx.extend_from_slice(col);
         col_ptr.push(row_idx.len() as u32);
     }
-    Pattern { n, col_ptr, row_idx }
+    let identity: Arc<Vec<u32>> = Arc::new((0..n as u32).collect());
+    Pattern { n, col_ptr, row_idx, fwd: identity.clone(), inv: identity }
 }
 
 /// Moment about a point and force of the nodal reactions of a node set, in the current configuration.

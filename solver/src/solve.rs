@@ -18,9 +18,12 @@ pub struct NewtonOptions {
     pub atol: f64,
     /// Below ‖r‖ ≤ stagnation_rtol · scale, stop when the residual stops decreasing (round-off).
     pub stagnation_rtol: f64,
-    /// Give up (divergence) when the residual is still above its initial value after this many
-    /// iterations, or above 1e-6 of it after twice as many.
+    /// Give up (divergence) when the residual is still above `stall_ratio` × its initial value
+    /// after this many iterations, or above 1e-6 of it after twice as many.
     pub stall_iterations: usize,
+    /// See `stall_iterations`: 1 for a solve from far (a cold start may take many globalised
+    /// iterations); the path follower's steps use 0.1 (their predictors are close).
+    pub stall_ratio: f64,
     /// Energy criterion: converged when |Δq·r| ≤ etol · |Δq₀·r₀| (first iteration of the solve)
     /// and ‖r‖ ≤ stagnation_rtol · scale.
     pub etol: f64,
@@ -33,7 +36,7 @@ pub struct NewtonOptions {
 
 impl Default for NewtonOptions {
     fn default() -> Self {
-        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, stagnation_rtol: 1e-7, stall_iterations: 8, etol: 1e-22, line_search: true, indefinite: false, log: false }
+        NewtonOptions { max_iter: 25, rtol: 1e-10, atol: 1e-13, stagnation_rtol: 1e-7, stall_iterations: 8, stall_ratio: 1.0, etol: 1e-22, line_search: true, indefinite: false, log: false }
     }
 }
 
@@ -66,7 +69,7 @@ pub fn newton(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptio
 /// an indefinite factorisation with `opts.indefinite`).
 pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &NewtonOptions) -> Result<(NewtonStats, Assembled, Factor), NewtonFailure> {
     let lp = crate::continuation::LoadPath::new(model, loads.clone(), loads.clone(), Vec::new());
-    match crate::continuation::correct(&lp, q, 0.0, None, opts, false, None) {
+    match crate::continuation::correct(&lp, q, 0.0, None, opts, false, None, false) {
         Ok(s) if s.stable || opts.indefinite => {
             let a = model.assemble(&s.q, loads, true).map_err(elem_fail)?;
             *q = s.q;
@@ -110,4 +113,3 @@ impl FailureCause {
         }
     }
 }
-

@@ -497,9 +497,18 @@ pub fn design_gradient(
         forward_time_s: 0.0,
         gradient_time_s: 0.0,
     };
-    for &kind in scenes {
-        let w = warm.and_then(|w| w.get(kind.name())).map(|(p, q)| (q.as_slice(), *p));
-        let g = scene_gradient(geom, opts, kind, p_kpa, rho, w, limit_cap)?;
+    // the scenes are independent: solved concurrently (each one's assembly is parallel too;
+    // measured at the default mesh on 2 cores, one scene at a time used 1.1 cores)
+    use rayon::prelude::*;
+    let results: Vec<Result<SceneGradient, SceneError>> = scenes
+        .par_iter()
+        .map(|&kind| {
+            let w = warm.and_then(|w| w.get(kind.name())).map(|(p, q)| (q.as_slice(), *p));
+            scene_gradient(geom, opts, kind, p_kpa, rho, w, limit_cap)
+        })
+        .collect();
+    for (&kind, g) in scenes.iter().zip(results) {
+        let g = g?;
         out.newton_iterations += g.cost.newton_iterations + g.cost.limit_newton_iterations;
         out.adjoint_solves += g.cost.adjoint_solves;
         out.forward_time_s += g.cost.forward_time_s;

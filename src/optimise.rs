@@ -41,7 +41,8 @@
 //! library is LGPL) and a pure-Rust trust-region SQP whose QP subproblems clarabel solves (elastic
 //! constraints so that every subproblem is feasible, ℓ1 merit function, damped BFGS Hessian).
 //! Runs (optimiser × start) go in parallel with rayon; the evaluations of a run are sequential,
-//! each warm-started from the previous converged states.
+//! each from a cold start ([`WARM_STARTS`]: warm starts from the previous converged states were
+//! measured not to pay).
 
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -233,6 +234,13 @@ pub const FEAS_TOL: f64 = 1e-3;
 /// an actuator cannot be operated at its limit point, and solves there are ill-conditioned.
 pub const STABILITY_MARGIN: f64 = 0.02;
 
+/// Warm-start an evaluation from the previous one's converged states. Off: measured (bench
+/// `warm_start`) at optimiser-sized steps next to the energy optimum, Newton from the
+/// neighbour's state on the new geometry did not converge in any case (sweep and default meshes,
+/// steps of 0.5 mm / 10° and 40°), so the warm start cost 3–9 extra iterations before the cold
+/// path; the cold path costs 2.5–3 iterations per step.
+pub const WARM_STARTS: bool = false;
+
 /// The limit-pressure search covers p ≤ p_lim ≤ LIMIT_WINDOW·p/(1 − m) (at most p_max/(1 − m)).
 pub const LIMIT_WINDOW: f64 = 1.25;
 
@@ -324,7 +332,8 @@ impl OptProblem {
         // p_max); beyond, p_lim is taken as the cap (a continuous, conservative clip)
         let reach = (LIMIT_WINDOW * p).min(pmax).max(p);
         let cap = reach / (1.0 - STABILITY_MARGIN);
-        let dg: DesignGradient = match design_gradient(&geom, &self.opts, &self.scenes, p, self.ks_rho, warm.as_ref(), Some(cap)) {
+        let start = if WARM_STARTS { warm.as_ref() } else { None };
+        let dg: DesignGradient = match design_gradient(&geom, &self.opts, &self.scenes, p, self.ks_rho, start, Some(cap)) {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("model-error: {e}")),
         };

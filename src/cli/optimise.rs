@@ -173,7 +173,7 @@ fn objective_map(out: &std::path::Path, op: &crate::optimise::OptProblem, runs: 
     let (xa, xl) = (lin(ia, na), lin(il, nl));
     let t0 = std::time::Instant::now();
     println!("map: {na} x {nl} designs over (α, l) on {} at {}", mp.opts.mesh.size_string(), fmt_design(&best.design));
-    // one row of α per l, warm-started along the row
+    // one row of α per l (evaluate warm-starts along the row only when optimise::WARM_STARTS is on)
     let rows: Vec<Vec<(Option<f64>, bool, String)>> = xl
         .par_iter()
         .map(|(tl, _)| {

@@ -20,5 +20,6 @@ pub mod meshing;
 pub mod optimise;
 pub mod plot;
 pub mod problem;
+pub mod rom;
 pub mod scene;
 pub mod sweep;

@@ -107,6 +107,9 @@ pub struct SceneOptions {
     /// on the lateral wall only. It changes nothing where the cap's axial translation is held
     /// (pure-twist scenes) except the axial reaction.
     pub cap_load: bool,
+    /// Solve with this reduced-order model instead of the full one (`rom` fidelity): path states
+    /// are then its reduced coordinates.
+    pub rom: Option<std::sync::Arc<twistopt_solver::rom::Rom>>,
 }
 
 impl SceneOptions {
@@ -120,6 +123,7 @@ impl SceneOptions {
             steps: ContinuationOptions::default(),
             keep_fields: false,
             cap_load: true,
+            rom: None,
         }
     }
 }
@@ -319,6 +323,25 @@ impl SceneModel {
         Ok(SceneModel { kind, model, multiplicity: if opts.sector { 3.0 } else { 1.0 }, top_nodes, cavity_nodes, cap_reference, rotation_slot, mesh: am })
     }
 
+    /// The number of unknowns of a path state at `opts`' fidelity (reduced coordinates with a ROM).
+    pub fn state_dim(&self, opts: &SceneOptions) -> usize {
+        match &opts.rom {
+            Some(rom) => rom.basis.k + self.model.n_reduced() - self.model.dofs.n_nodal(),
+            None => self.model.n_reduced(),
+        }
+    }
+
+    /// The full model's unknowns of a path state at `opts`' fidelity.
+    pub fn full_state(&self, opts: &SceneOptions, state: &[f64]) -> Vec<f64> {
+        match &opts.rom {
+            Some(rom) if state.len() != self.model.n_reduced() => match twistopt_solver::rom::Reduction::new(&self.model, &rom.basis) {
+                Ok(red) => red.lift(state),
+                Err(_) => vec![0.0; self.model.n_reduced()],
+            },
+            _ => state.to_vec(),
+        }
+    }
+
     /// Loads at pressure p (kPa) and prescribed cap rotation θ (rad).
     pub fn loads(&self, p_kpa: f64, theta_rad: f64) -> Loads {
         let mut l = Loads::zero(&self.model);
@@ -440,12 +463,13 @@ fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, 
     pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop)
 }
 
-/// [`pressure_path`] with its own path options.
+/// [`pressure_path`] with its own path options: on the full model, or on the reduced one when
+/// `opts.rom` is set (its states are then reduced coordinates).
 #[allow(clippy::too_many_arguments)]
 fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
     let vacuum = p_end_kpa < 0.0;
     let gap = sm.contact_gap();
-    let lp = sm.path(sm.loads(0.0, 0.0), sm.loads(p_end_kpa, 0.0), (vacuum && stop).then_some(gap));
+    let (from, to) = (sm.loads(0.0, 0.0), sm.loads(p_end_kpa, 0.0));
     let mut stops = Vec::new();
     if stop {
         stops.push(Stop { name: "ballooning".into(), output: OUT_RADIUS, threshold: opts.ballooning_limit_mm, rising: true });
@@ -455,12 +479,41 @@ fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &S
     }
     let stations: Vec<f64> = stations_kpa.iter().map(|p| p / p_end_kpa).collect();
     let lam0 = if p_end_kpa != 0.0 { p0_kpa / p_end_kpa } else { 0.0 };
+    if let Some(rom) = &opts.rom {
+        let refuse = |cause: String| ScenePath { points: Vec::new(), end: Some((SceneStatus::ModelError, cause)), stats: PathStats::default(), last: None };
+        if vacuum {
+            return refuse("the reduced-order model covers positive pressures only (vacuum needs self-contact)".into());
+        }
+        let rp = match rom.path(&sm.model, from, to, sm.functionals()) {
+            Ok(rp) => rp,
+            Err(e) => return refuse(format!("reduced-order model: {e}")),
+        };
+        let res = follow(&rp, q0, lam0, 1.0, &stations, &stops, path_opts);
+        return scene_path(sm, opts, &res.points, res.end, res.stats, |lam| rp.loads(lam), &stops, p0_kpa, gap, None);
+    }
+    let lp = sm.path(from, to, (vacuum && stop).then_some(gap));
     let res = follow(&lp, q0, lam0, 1.0, &stations, &stops, path_opts);
-    let points: Vec<ScenePoint> =
-        res.points.iter().map(|pt| ScenePoint { record: sm.step_record(&pt.outputs, lp.loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations), q: pt.q.clone() }).collect();
+    scene_path(sm, opts, &res.points, res.end, res.stats, |lam| lp.loads(lam), &stops, p0_kpa, gap, res.last)
+}
+
+/// A scene path from the points and end of a followed path (full or reduced model).
+#[allow(clippy::too_many_arguments)]
+fn scene_path(
+    sm: &SceneModel,
+    opts: &SceneOptions,
+    pts: &[twistopt_solver::continuation::PathPoint],
+    end: PathEnd,
+    stats: PathStats,
+    loads: impl Fn(f64) -> Loads,
+    stops: &[Stop],
+    p0_kpa: f64,
+    gap: f64,
+    last: Option<(Vec<f64>, Factor)>,
+) -> ScenePath {
+    let points: Vec<ScenePoint> = pts.iter().map(|pt| ScenePoint { record: sm.step_record(&pt.outputs, loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations), q: pt.q.clone() }).collect();
     let p_last = points.last().map(|p| p.record.p_kpa).unwrap_or(p0_kpa);
     let limit = opts.ballooning_limit_mm;
-    let end = match res.end {
+    let end = match end {
         PathEnd::Completed => None,
         PathEnd::Stopped(i) if stops[i].name == "ballooning" => Some((SceneStatus::Ballooning, format!("max deformed radius reached the ballooning limit {limit:.2} mm at p = {p_last:.4} kPa"))),
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
@@ -479,7 +532,16 @@ fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &S
             Some((SceneStatus::from_failure(f), cause))
         }
     };
-    ScenePath { points, end, stats: res.stats, last: res.last }
+    ScenePath { points, end, stats, last }
+}
+
+/// Every converged state of a scene's pressure ramp from the unloaded state towards `p_end_kpa`
+/// without the ballooning stop (to the pressure maximum, an instability or `p_end_kpa`):
+/// (pressure kPa, path state, prescribed values), with the Newton iterations spent.
+pub fn ramp_states(sm: &SceneModel, opts: &SceneOptions, p_end_kpa: f64) -> (Vec<(f64, Vec<f64>, Vec<f64>)>, usize) {
+    let path = pressure_path(sm, opts, &vec![0.0; sm.state_dim(opts)], 0.0, p_end_kpa, &[], false);
+    let presc = sm.loads(0.0, 0.0).presc;
+    (path.points.into_iter().map(|p| (p.record.p_kpa, p.q, presc.clone())).collect(), path.stats.newton_iterations)
 }
 
 /// A converged state of a scene at one pressure (for sensitivities and warm starts).
@@ -533,7 +595,7 @@ impl Equilibrium {
 /// there (`end`).
 pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Option<(&[f64], f64)>) -> Equilibrium {
     let mut spent = 0;
-    if let Some((w, pw)) = warm.filter(|w| w.0.len() == sm.model.n_reduced() && w.1.is_finite() && p_kpa != 0.0) {
+    if let Some((w, pw)) = warm.filter(|w| w.0.len() == sm.model.n_reduced() && opts.rom.is_none() && w.1.is_finite() && p_kpa != 0.0) {
         // the warm state solved at its own pressure on the new design, then the path onwards
         let lp = sm.path(sm.loads(0.0, 0.0), sm.loads(p_kpa, 0.0), None);
         let lam_w = pw / p_kpa;
@@ -547,7 +609,7 @@ pub fn equilibrium(sm: &SceneModel, opts: &SceneOptions, p_kpa: f64, warm: Optio
             Err((_, its)) => spent += its,
         }
     }
-    let path = pressure_path(sm, opts, &vec![0.0; sm.model.n_reduced()], 0.0, p_kpa, &[], false);
+    let path = pressure_path(sm, opts, &vec![0.0; sm.state_dim(opts)], 0.0, p_kpa, &[], false);
     Equilibrium::from_path(sm, path, spent, false)
 }
 
@@ -609,8 +671,8 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
     pos.sort_by(f64::total_cmp);
     neg.sort_by(|a, b| b.total_cmp(a));
     let l0 = sm.loads(0.0, 0.0);
-    let q0 = vec![0.0; sm.model.n_reduced()];
-    let a0 = sm.model.assemble(&q0, &l0, false).map_err(|e| SceneError::Initial(e.to_string()))?;
+    let a0 = sm.model.assemble(&vec![0.0; sm.model.n_reduced()], &l0, false).map_err(|e| SceneError::Initial(e.to_string()))?;
+    let q0 = vec![0.0; sm.state_dim(opts)];
     let mut steps = vec![sm.record(&a0, &l0, 0)];
     let mut states = vec![q0.clone()];
     let mut status = (SceneStatus::Completed, String::new());
@@ -643,7 +705,7 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
         displacements: steps
             .iter()
             .zip(&states)
-            .map(|(s, q)| sm.model.assemble(q, &sm.loads(s.p_kpa, 0.0), false).map(|a| a.u).unwrap_or_else(|_| vec![[0.0; 3]; sm.model.mesh.nodes.len()]))
+            .map(|(s, q)| sm.model.assemble(&sm.full_state(opts, q), &sm.loads(s.p_kpa, 0.0), false).map(|a| a.u).unwrap_or_else(|_| vec![[0.0; 3]; sm.model.mesh.nodes.len()]))
             .collect(),
     });
     Ok(SceneResult {
@@ -724,7 +786,7 @@ pub fn run_torque_rotation(geom: &ActuatorGeometry, opts: &SceneOptions, axial_f
     let (free_kind, held_kind) = if axial_free { (SceneKind::Free, SceneKind::Blocked) } else { (SceneKind::PureTwist, SceneKind::PureTwistBlocked) };
     let free = SceneModel::build(geom, opts, free_kind)?;
     let held = SceneModel::build(geom, opts, held_kind)?;
-    let q0 = vec![0.0; free.model.n_reduced()];
+    let q0 = vec![0.0; free.state_dim(opts)];
     let n = n_points.max(1);
     let mut out = Vec::new();
     for &p in pressures_kpa {
@@ -734,7 +796,7 @@ pub fn run_torque_rotation(geom: &ActuatorGeometry, opts: &SceneOptions, axial_f
             out.push(TorqueRotation { p_kpa: p, free_theta_deg: theta_f, points: vec![], nonlinearity: 0.0, status: e.0, cause: e.1 });
             continue;
         }
-        let hp = pressure_path(&held, opts, &vec![0.0; held.model.n_reduced()], 0.0, p, &[], true);
+        let hp = pressure_path(&held, opts, &vec![0.0; held.state_dim(opts)], 0.0, p, &[], true);
         let mut status = SceneStatus::Completed;
         let mut cause = String::new();
         let mut pts = Vec::new();

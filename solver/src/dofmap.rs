@@ -401,6 +401,13 @@ impl DofMap {
         self.n_free
     }
 
+    /// Number of free nodal unknowns: they are numbered first (0..n_nodal), the free rigid-body
+    /// and periodic-shift DOFs after them. Models of one mesh whose constraints differ only in
+    /// their rigid-body DOFs share this numbering (a reduced basis of the nodal unknowns serves them all).
+    pub fn n_nodal(&self) -> usize {
+        self.comps.iter().filter_map(|c| if let Comp::Free(k) = c { Some(*k as usize + 1) } else { None }).max().unwrap_or(0)
+    }
+
     /// Value of body DOF k of body b.
     pub fn body_value(&self, b: usize, k: usize, q: &[f64], presc: &[f64]) -> f64 {
         match self.body_dofs[b][k] {

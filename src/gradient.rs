@@ -32,8 +32,8 @@ use crate::meshing::mesh_shape_derivatives;
 use crate::scene::{continue_to_failure, equilibrium, SceneError, SceneKind, SceneModel, SceneOptions, SceneStatus};
 use twistopt_solver::adjoint::{self, Direction, Functional};
 use twistopt_solver::continuation::{correct, PathStats};
-use twistopt_solver::solve::NewtonOptions;
 use twistopt_solver::material::Material;
+use twistopt_solver::solve::NewtonOptions;
 
 /// Default KS parameter (1/mm). The gap to the true max is at most ln(N)/ρ and in practice a few
 /// hundredths of a millimetre (reported per evaluation as `ks_gap_mm`).

@@ -7,7 +7,7 @@ use crate::scene::{SceneKind, SceneModel, SceneOptions};
 use anyhow::{anyhow, Result};
 use rayon::prelude::*;
 use std::time::Instant;
-use twistopt_solver::rom::{Basis, EcswOptions, Rom, Snapshot, Truncation};
+use twistopt_solver::rom::{Basis, EcswOptions, Frame, Rom, Snapshot, Truncation};
 
 /// How a reduced model is trained.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -19,6 +19,9 @@ pub struct TrainOptions {
     pub p_max_kpa: f64,
     pub truncation: Truncation,
     pub ecsw: EcswOptions,
+    /// the components the basis is expressed in
+    #[serde(default)]
+    pub frame: Frame,
 }
 
 impl Default for TrainOptions {
@@ -29,6 +32,7 @@ impl Default for TrainOptions {
             p_max_kpa: 100.0,
             truncation: Truncation::Tail { tol: 1e-6, max: 60 },
             ecsw: EcswOptions { tau: 0.01, max_elements: 400, tangent_directions: 2 },
+            frame: Frame::Cylindrical,
         }
     }
 }
@@ -39,6 +43,8 @@ pub struct Ramp {
     pub kind: SceneKind,
     /// (pressure kPa, model unknowns q, prescribed values)
     pub states: Vec<(f64, Vec<f64>, Vec<f64>)>,
+    /// the nodal unknowns of the loaded states in the basis frame (POD snapshots)
+    pub frame_states: Vec<Vec<f64>>,
     pub newton_iterations: usize,
 }
 
@@ -109,13 +115,14 @@ pub fn random_designs(count: usize, seed: u64) -> Vec<Design> {
 
 /// The full-order ramp of one scene on one design to its pressure maximum (or `p_max_kpa`),
 /// without the ballooning stop, with every converged state.
-pub fn full_ramp(design: &Design, opts: &SceneOptions, kind: SceneKind, p_max_kpa: f64) -> Result<Ramp> {
+pub fn full_ramp(design: &Design, opts: &SceneOptions, kind: SceneKind, p_max_kpa: f64, frame: Frame) -> Result<Ramp> {
     let geom = ActuatorGeometry::new(design, RangePolicy::TableI)?;
     let mut full = opts.clone();
     full.rom = None;
     let sm = SceneModel::build(&geom, &full, kind)?;
     let (states, its) = crate::scene::ramp_states(&sm, &full, p_max_kpa);
-    Ok(Ramp { design: design.clone(), kind, states, newton_iterations: its })
+    let frame_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::to_frame(&sm.model, frame, &s.1)).collect();
+    Ok(Ramp { design: design.clone(), kind, states, frame_states, newton_iterations: its })
 }
 
 /// Train a reduced model: full ramps of `t.scenes` on `t.designs` Halton designs, POD of every
@@ -131,7 +138,7 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
     let jobs: Vec<(usize, SceneKind)> = (0..designs.len()).flat_map(|d| t.scenes.iter().map(move |&k| (d, k))).collect();
     let ramps: Vec<Ramp> = jobs
         .par_iter()
-        .filter_map(|&(d, k)| match full_ramp(&designs[d], opts, k, t.p_max_kpa) {
+        .filter_map(|&(d, k)| match full_ramp(&designs[d], opts, k, t.p_max_kpa, t.frame) {
             Ok(r) => {
                 log(&format!("  training design {} ({}) {}: {} states, {} Newton iterations", d, label(&designs[d]), k.name(), r.states.len(), r.newton_iterations));
                 Some(r)
@@ -143,35 +150,39 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
         })
         .collect();
     let snapshot_time_s = t0.elapsed().as_secs_f64();
-    // the nodal part of every state (the unloaded one is zero)
-    let n_nodal = {
-        let geom = ActuatorGeometry::new(&designs[0], RangePolicy::TableI)?;
-        let mut full = opts.clone();
-        full.rom = None;
-        SceneModel::build(&geom, &full, t.scenes[0])?.model.dofs.n_nodal()
-    };
-    let snaps: Vec<Vec<f64>> = ramps.iter().flat_map(|r| r.states.iter().filter(|s| s.0 != 0.0).map(|s| s.1[..n_nodal].to_vec())).collect();
+    // the nodal part of every loaded state, in the basis frame
+    let snaps: Vec<Vec<f64>> = ramps.iter().flat_map(|r| r.frame_states.iter().cloned()).collect();
     if snaps.is_empty() {
         return Err(anyhow!("no training states: every training ramp failed"));
     }
     let t1 = Instant::now();
-    let basis = Basis::pod(&snaps, t.truncation)?;
+    let mut basis = Basis::pod(&snaps, t.truncation)?;
+    basis.frame = t.frame;
     let pod_time_s = t1.elapsed().as_secs_f64();
-    log(&format!("  POD: {} snapshots of {} unknowns → {} modes", snaps.len(), n_nodal, basis.k));
-    // ECSW over the same states, design by design (each on its own geometry)
+    log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snaps.len(), basis.n, basis.k, basis.frame));
+    // ECSW over the same states, design by design (each on its own geometry); max_elements = 0:
+    // no hyper-reduction (every element at weight 1)
     let t2 = Instant::now();
     let mut acc = twistopt_solver::rom::EcswAccumulator::new(t.ecsw.tangent_directions);
     let mut elements = 0;
-    for r in &ramps {
-        let geom = ActuatorGeometry::new(&r.design, RangePolicy::TableI)?;
+    let fit = if t.ecsw.max_elements == 0 {
+        let geom = ActuatorGeometry::new(&designs[0], RangePolicy::TableI)?;
         let mut full = opts.clone();
         full.rom = None;
-        let sm = SceneModel::build(&geom, &full, r.kind)?;
-        elements = sm.model.mesh.n_elements();
-        let snaps: Vec<Snapshot> = r.states.iter().filter(|s| s.0 != 0.0).map(|s| Snapshot { model: &sm.model, q: s.1.clone(), presc: s.2.clone() }).collect();
-        acc.add(&basis, &snaps)?;
-    }
-    let fit = acc.fit(&t.ecsw);
+        elements = SceneModel::build(&geom, &full, t.scenes[0])?.model.mesh.n_elements();
+        twistopt_solver::rom::EcswFit { sample: twistopt_solver::rom::Sample::all(elements), residual: 0.0, rows: 0 }
+    } else {
+        for r in &ramps {
+            let geom = ActuatorGeometry::new(&r.design, RangePolicy::TableI)?;
+            let mut full = opts.clone();
+            full.rom = None;
+            let sm = SceneModel::build(&geom, &full, r.kind)?;
+            elements = sm.model.mesh.n_elements();
+            let snaps: Vec<Snapshot> = r.states.iter().filter(|s| s.0 != 0.0).map(|s| Snapshot { model: &sm.model, q: s.1.clone(), presc: s.2.clone() }).collect();
+            acc.add(&basis, &snaps)?;
+        }
+        acc.fit(&t.ecsw)
+    };
     let ecsw_time_s = t2.elapsed().as_secs_f64();
     log(&format!("  ECSW: {} of {} elements, relative residual {:.2e} (τ = {})", fit.sample.elements.len(), elements, fit.residual, t.ecsw.tau));
     let report = TrainReport {

@@ -65,9 +65,26 @@ pub enum Truncation {
     Modes(usize),
 }
 
-/// An orthonormal basis of the nodal unknowns: V (n × k), stored row-major.
+/// The components a basis is expressed in, node by node.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Frame {
+    /// the model's own (x, y, z) components
+    #[default]
+    Cartesian,
+    /// (radial, circumferential, axial) components about the z axis at each node's reference
+    /// position: a displacement field that rotates with the reference geometry (e.g. the same
+    /// motion of two designs whose sections are pre-twisted differently) has the same components
+    Cylindrical,
+}
+
+/// An orthonormal basis of the nodal unknowns: V (n × k), stored row-major, in the components
+/// of `frame` (the model's unknowns are then T V a with T the per-node rotation to the frame,
+/// orthonormal too).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Basis {
+    #[serde(default)]
+    pub frame: Frame,
     pub n: usize,
     pub k: usize,
     /// row-major: entry (i, j) at v[i k + j]
@@ -115,7 +132,7 @@ impl Basis {
                 v[i * k + j] = u[(i, j)];
             }
         }
-        Ok(Basis { n, k, v, singular_values: s })
+        Ok(Basis { frame: Frame::Cartesian, n, k, v, singular_values: s })
     }
 
     /// Row i of V.
@@ -149,7 +166,7 @@ impl Basis {
         for i in 0..self.n {
             v[i * k..(i + 1) * k].copy_from_slice(&self.row(i)[..k]);
         }
-        Basis { n: self.n, k, v, singular_values: self.singular_values.clone() }
+        Basis { frame: self.frame, n: self.n, k, v, singular_values: self.singular_values.clone() }
     }
 }
 
@@ -167,11 +184,54 @@ impl Sample {
     }
 }
 
-/// The map between a model's unknowns q and the reduced coordinates z = (a, b).
-#[derive(Clone, Copy)]
+/// The map between a model's unknowns q and the reduced coordinates z = (a, b): q = (Φ a, b)
+/// with Φ = T V the basis in the model's components.
+#[derive(Clone)]
 pub struct Reduction<'a> {
     pub model: &'a Model,
     pub basis: &'a Basis,
+    /// Φ (n × k, row-major)
+    phi: std::borrow::Cow<'a, [f64]>,
+}
+
+/// The per-node rotations T of a frame for a model's nodal unknowns: for each free node, its
+/// three unknowns and the 3×3 matrix whose columns are the frame's unit vectors (None for the
+/// Cartesian frame).
+fn frame_rotations(model: &Model, frame: Frame) -> Option<Vec<([usize; 3], [[f64; 3]; 3])>> {
+    match frame {
+        Frame::Cartesian => None,
+        Frame::Cylindrical => Some(
+            model
+                .dofs
+                .free_nodes()
+                .into_iter()
+                .map(|(n, k)| {
+                    let x = model.mesh.nodes[n];
+                    let r = (x[0] * x[0] + x[1] * x[1]).sqrt();
+                    let (c, s) = if r > 1e-12 { (x[0] / r, x[1] / r) } else { (1.0, 0.0) };
+                    // columns e_r, e_θ, e_z
+                    (k, [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+                })
+                .collect(),
+        ),
+    }
+}
+
+/// The nodal unknowns q (first n_nodal entries of a model state) in the components of `frame`:
+/// Tᵀ q (what POD snapshots of a frame are).
+pub fn to_frame(model: &Model, frame: Frame, q: &[f64]) -> Vec<f64> {
+    let n = model.dofs.n_nodal();
+    let mut y = q[..n].to_vec();
+    if let Some(rots) = frame_rotations(model, frame) {
+        for (k, t) in rots {
+            if k.iter().all(|&i| i < n) {
+                for c in 0..3 {
+                    y[k[c]] = (0..3).map(|r| t[r][c] * q[k[r]]).sum();
+                }
+            }
+        }
+    }
+    y
 }
 
 impl<'a> Reduction<'a> {
@@ -180,7 +240,32 @@ impl<'a> Reduction<'a> {
         if basis.n != nn {
             return Err(RomError::BasisSize(basis.n, nn));
         }
-        Ok(Reduction { model, basis })
+        let phi = match frame_rotations(model, basis.frame) {
+            None => std::borrow::Cow::Borrowed(basis.v.as_slice()),
+            Some(rots) => {
+                let k = basis.k;
+                let mut phi = basis.v.clone();
+                for (idx, t) in rots {
+                    if idx.iter().any(|&i| i >= nn) {
+                        continue;
+                    }
+                    for j in 0..k {
+                        let v = [basis.v[idx[0] * k + j], basis.v[idx[1] * k + j], basis.v[idx[2] * k + j]];
+                        for r in 0..3 {
+                            phi[idx[r] * k + j] = t[r][0] * v[0] + t[r][1] * v[1] + t[r][2] * v[2];
+                        }
+                    }
+                }
+                std::borrow::Cow::Owned(phi)
+            }
+        };
+        Ok(Reduction { model, basis, phi })
+    }
+    /// Row i of Φ.
+    #[inline]
+    fn phi_row(&self, i: usize) -> &[f64] {
+        let k = self.basis.k;
+        &self.phi[i * k..(i + 1) * k]
     }
     /// k + the model's free non-nodal DOFs.
     pub fn dim(&self) -> usize {
@@ -189,13 +274,21 @@ impl<'a> Reduction<'a> {
     /// q(z).
     pub fn lift(&self, z: &[f64]) -> Vec<f64> {
         let k = self.basis.k;
-        let mut q = self.basis.lift(&z[..k]);
+        let mut q: Vec<f64> = (0..self.basis.n).map(|i| self.phi_row(i).iter().zip(&z[..k]).map(|(v, x)| v * x).sum()).collect();
         q.extend_from_slice(&z[k..]);
         q
     }
     /// z of the orthogonal projection of q.
     pub fn project(&self, q: &[f64]) -> Vec<f64> {
-        let mut z = self.basis.project(&q[..self.basis.n]);
+        let k = self.basis.k;
+        let mut z = vec![0.0; k];
+        for (i, &qi) in q.iter().enumerate().take(self.basis.n) {
+            if qi != 0.0 {
+                for (zj, vj) in z.iter_mut().zip(self.phi_row(i)) {
+                    *zj += vj * qi;
+                }
+            }
+        }
         z.extend_from_slice(&q[self.basis.n..]);
         z
     }
@@ -203,7 +296,7 @@ impl<'a> Reduction<'a> {
     #[inline]
     fn add_row(&self, i: usize, c: f64, out: &mut [f64]) {
         if i < self.basis.n {
-            for (o, v) in out.iter_mut().zip(self.basis.row(i)) {
+            for (o, v) in out.iter_mut().zip(self.phi_row(i)) {
                 *o += c * v;
             }
         } else {

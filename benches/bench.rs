@@ -383,8 +383,11 @@ fn warm_start() {
             let t_warm = t.elapsed().as_secs_f64();
             let (oc, ow) = (cold.omega.get("combined").map(|o| o.value), hot.omega.get("combined").map(|o| o.value));
             println!("warm_start {preset} {name}: cold {t_cold:.1} s ({} its), warm {t_warm:.1} s ({} its), Ω {oc:?} vs {ow:?}", cold.newton_iterations, hot.newton_iterations);
-            cases.insert(name.into(), json!({"cold_s": t_cold, "cold_newton_iterations": cold.newton_iterations, "warm_s": t_warm, "warm_newton_iterations": hot.newton_iterations,
-                "warm_used": hot.scenes.values().all(|s| s.cost.warm_started), "omega_cold": oc, "omega_warm": ow, "speed_up": t_cold / t_warm}));
+            cases.insert(
+                name.into(),
+                json!({"cold_s": t_cold, "cold_newton_iterations": cold.newton_iterations, "warm_s": t_warm, "warm_newton_iterations": hot.newton_iterations,
+                "warm_used": hot.scenes.values().all(|s| s.cost.warm_started), "omega_cold": oc, "omega_warm": ow, "speed_up": t_cold / t_warm}),
+            );
         }
         out.insert(preset.into(), Value::Object(cases));
     }
@@ -413,7 +416,10 @@ fn warm_start() {
         let p_cold = cold.steps.last().map(|s| s.p_kpa);
         let p_warm = lim.found().map(|e| e.record.p_kpa);
         let its_warm = eq.newton_iterations + lim.newton_iterations();
-        println!("warm_start sweep along α (free, sweep preset): cold {t_cold:.1} s ({} its, p_lim {p_cold:?}), warm {t_warm:.1} s ({its_warm} its, p_lim {p_warm:?}, warm used {})", cold.newton_iterations, eq.warm_started);
+        println!(
+            "warm_start sweep along α (free, sweep preset): cold {t_cold:.1} s ({} its, p_lim {p_cold:?}), warm {t_warm:.1} s ({its_warm} its, p_lim {p_warm:?}, warm used {})",
+            cold.newton_iterations, eq.warm_started
+        );
         out.insert(
             "sweep_along_alpha".into(),
             json!({"description": "free scene of (5√3, 20, 305°) ramped to its pressure maximum at the `sweep` preset: cold from 0, or warm from (5√3, 20, 300°)'s state at 90 % of that design's limit", "cold_s": t_cold, "cold_newton_iterations": cold.newton_iterations, "p_limit_cold_kPa": p_cold,

@@ -1284,7 +1284,8 @@ impl<'a> LoadPath<'a> {
     }
 }
 
-fn elem_eval(e: ElementError) -> EvalFailure {
+/// An element failure as the path follower's evaluation failure.
+pub(crate) fn elem_eval(e: ElementError) -> EvalFailure {
     match e {
         ElementError::Inverted(_) | ElementError::BadReference(_) => EvalFailure::Inversion,
         ElementError::NonFinite(_) => EvalFailure::NonFinite,

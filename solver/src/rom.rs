@@ -26,7 +26,7 @@
 //! reactions are reproduced).
 
 use crate::adjoint::{BodyState, Functional, State};
-use crate::continuation::{Eval, EvalFailure, PathModel};
+use crate::continuation::{elem_eval, Eval, EvalFailure, PathModel};
 use crate::dofmap::{BodyDof, BodyKin, Comp};
 use crate::element::{self, ElementError};
 use crate::model::{Loads, Model, SolveError};
@@ -861,13 +861,6 @@ fn add_body_nodal(model: &Model, nodes: &[usize], f: &[f64], w: f64, out: &mut [
                 out[3 * n + c] += w * f[3 * a + c];
             }
         }
-    }
-}
-
-fn elem_eval(e: ElementError) -> EvalFailure {
-    match e {
-        ElementError::Inverted(_) | ElementError::BadReference(_) => EvalFailure::Inversion,
-        ElementError::NonFinite(_) => EvalFailure::NonFinite,
     }
 }
 

@@ -140,6 +140,7 @@ pub struct Evaluation {
     /// design parameters and p by name
     pub design: BTreeMap<String, f64>,
     /// the objective in its unit (Ω in J/m³, |θ| in °, |τ| in N·m)
+    #[serde(deserialize_with = "null_nan::f64")]
     pub objective: f64,
     /// d objective / d variable (unscaled units)
     pub gradient: BTreeMap<String, f64>,
@@ -150,6 +151,7 @@ pub struct Evaluation {
     #[serde(rename = "tau_Nm")]
     pub tau_nm: Option<f64>,
     /// true max deformed radius over the scenes
+    #[serde(deserialize_with = "null_nan::f64")]
     pub max_radius_mm: f64,
     /// the lowest pressure maximum of the scenes found by continuing the ramp from p up to the
     /// pressure bound (None: none below the bound)
@@ -168,14 +170,29 @@ pub struct Evaluation {
     #[serde(default)]
     pub mesh: String,
     /// scaled objective f = −objective/reference and its gradient in x; constraint Jacobian
-    #[serde(skip)]
+    /// (what the optimiser saw: kept so that an interrupted optimisation replays exactly)
+    #[serde(default, rename = "f_scaled", deserialize_with = "null_nan::f64")]
     pub f: f64,
-    #[serde(skip)]
+    #[serde(default, rename = "df_scaled", deserialize_with = "null_nan::vec")]
     pub df: Vec<f64>,
-    #[serde(skip)]
+    #[serde(default, rename = "g_scaled", deserialize_with = "null_nan::vec")]
     pub g: Vec<f64>,
-    #[serde(skip)]
+    #[serde(default, rename = "dg_scaled", deserialize_with = "null_nan::vec2")]
     pub dg: Vec<Vec<f64>>,
+}
+
+/// Reading back numbers that JSON wrote as null (serde_json writes NaN and ±∞ so): NaN.
+mod null_nan {
+    use serde::{Deserialize, Deserializer};
+    pub fn f64<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
+    pub fn vec<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        Ok(Vec::<Option<f64>>::deserialize(d)?.into_iter().map(|v| v.unwrap_or(f64::NAN)).collect())
+    }
+    pub fn vec2<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<f64>>, D::Error> {
+        Ok(Vec::<Vec<Option<f64>>>::deserialize(d)?.into_iter().map(|r| r.into_iter().map(|v| v.unwrap_or(f64::NAN)).collect()).collect())
+    }
 }
 
 impl Evaluation {
@@ -472,6 +489,17 @@ pub struct Session<'a> {
     pub evaluations: Vec<Evaluation>,
     /// set when the evaluation budget is exhausted
     pub exhausted: bool,
+    /// evaluations of an interrupted run, answered in order while the optimiser asks for the
+    /// same points (the algorithms are deterministic); dropped at the first other point
+    replay: std::collections::VecDeque<Evaluation>,
+    on_replay: Option<Box<dyn Fn(&Evaluation) + 'a>>,
+    /// how many evaluations were answered from the replay
+    pub replayed: usize,
+}
+
+/// Two scaled design points are the same evaluation point (to the JSON round trip of floats).
+fn same_point(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12)
 }
 
 impl<'a> Session<'a> {
@@ -492,7 +520,15 @@ impl<'a> Session<'a> {
     }
 
     pub fn with_evaluator(stop: StopRules, n_constraints: usize, evaluator: Box<dyn FnMut(&[f64], Option<&Evaluation>) -> Evaluation + 'a>) -> Self {
-        Session { evaluator, stop, n_constraints, evaluations: Vec::new(), exhausted: false }
+        Session { evaluator, stop, n_constraints, evaluations: Vec::new(), exhausted: false, replay: Default::default(), on_replay: None, replayed: 0 }
+    }
+
+    /// Answer from these recorded evaluations (of an interrupted run, in their order) while the
+    /// optimiser asks for their points; `on_replay` sees each one answered.
+    pub fn with_replay(mut self, replay: Vec<Evaluation>, on_replay: impl Fn(&Evaluation) + 'a) -> Self {
+        self.replay = replay.into();
+        self.on_replay = Some(Box::new(on_replay));
+        self
     }
 
     /// The evaluation at x (cached when x repeats the last point).
@@ -508,6 +544,18 @@ impl<'a> Session<'a> {
             if let Some(last) = self.evaluations.last() {
                 return last.clone();
             }
+        }
+        if let Some(r) = self.replay.pop_front() {
+            if same_point(&r.x, x) && r.df.len() == x.len() {
+                self.replayed += 1;
+                if let Some(f) = &self.on_replay {
+                    f(&r);
+                }
+                self.evaluations.push(r.clone());
+                return r;
+            }
+            // the run went elsewhere than recorded: evaluate from here on
+            self.replay.clear();
         }
         let last_good = self.evaluations.iter().rev().find(|e| e.status == "ok").cloned();
         let ev = (self.evaluator)(x, last_good.as_ref());
@@ -881,6 +929,20 @@ fn stage_start(sp: &OptProblem, session: &mut Session, x: Vec<f64>) -> Vec<f64> 
 /// Run every (optimiser, start) pair in parallel. `progress` is called after each run, and
 /// `each` after each evaluation with the run's name and the evaluation's index.
 pub fn run_all(problem: &OptProblem, optimisers: &[String], starts: &[Vec<f64>], progress: impl Fn(&RunResult) + Sync, each: impl Fn(&str, usize, &Evaluation) + Sync) -> Vec<RunResult> {
+    run_all_resumed(problem, optimisers, starts, &BTreeMap::new(), progress, each)
+}
+
+/// [`run_all`], resuming interrupted runs: `recorded` holds each run's evaluations so far (by
+/// run name, "<optimiser> start <i>", in order), which are replayed instead of re-evaluated
+/// while each run asks for the same points; `each` sees only the new evaluations.
+pub fn run_all_resumed(
+    problem: &OptProblem,
+    optimisers: &[String],
+    starts: &[Vec<f64>],
+    recorded: &BTreeMap<String, Vec<Evaluation>>,
+    progress: impl Fn(&RunResult) + Sync,
+    each: impl Fn(&str, usize, &Evaluation) + Sync,
+) -> Vec<RunResult> {
     use rayon::prelude::*;
     let jobs: Vec<(String, usize)> = optimisers.iter().flat_map(|o| (0..starts.len()).map(move |s| (o.clone(), s))).collect();
     let done = Mutex::new(());
@@ -896,10 +958,12 @@ pub fn run_all(problem: &OptProblem, optimisers: &[String], starts: &[Vec<f64>],
             let (mut best, mut g0) = (None, 1.0);
             for (k, (label, sp)) in stages.iter().enumerate() {
                 let (run_name, counter, each) = (&run_name, &counter, &each);
+                let replay: Vec<Evaluation> = recorded.get(run_name.as_str()).map(|v| v.iter().filter(|e| e.stage == k).cloned().collect()).unwrap_or_default();
                 let mut session = Session::new(sp, move |e| {
                     counter.set(counter.get() + 1);
                     each(run_name, counter.get(), e)
-                });
+                })
+                .with_replay(replay, move |_| counter.set(counter.get() + 1));
                 if k > 0 {
                     x = stage_start(sp, &mut session, x);
                 }
@@ -1096,6 +1160,39 @@ mod tests {
             let e = s.evaluations.iter().min_by(|a, b| a.f.total_cmp(&b.f)).unwrap();
             assert!((e.x[0] - 0.3).abs() < 1e-4 && (e.x[1] - 1.0).abs() < 1e-6, "{name}: {:?} ({status})", e.x);
             assert!((e.f - 0.04).abs() < 1e-7, "{name}: f = {} ({status})", e.f);
+        }
+    }
+
+    /// An interrupted run resumed from its recorded evaluations (through their JSON lines) asks
+    /// for the same points, is answered from the record, and ends where the uninterrupted run
+    /// ends, evaluating only what the record lacks.
+    #[test]
+    fn a_resumed_run_replays_its_record_and_ends_where_the_whole_run_ends() {
+        for name in available_optimisers() {
+            let stop = StopRules { max_evaluations: 40, xtol_rel: 1e-6, ftol_rel: 1e-9 };
+            let mut whole = Session::with_evaluator(stop, 1, Box::new(disc));
+            optimiser(name).unwrap().run(&mut whole, &[0.2, 0.7]);
+            let n = whole.evaluations.len();
+            assert!(n >= 4, "{name}: {n} evaluations");
+            let record: Vec<Evaluation> = whole.evaluations[..n / 2].iter().map(|e| serde_json::from_str(&serde_json::to_string(e).unwrap()).unwrap()).collect();
+            let calls = std::cell::Cell::new(0usize);
+            let replays = std::cell::Cell::new(0usize);
+            let mut resumed = Session::with_evaluator(
+                stop,
+                1,
+                Box::new(|x: &[f64], l: Option<&Evaluation>| {
+                    calls.set(calls.get() + 1);
+                    disc(x, l)
+                }),
+            )
+            .with_replay(record, |_| replays.set(replays.get() + 1));
+            optimiser(name).unwrap().run(&mut resumed, &[0.2, 0.7]);
+            assert_eq!(resumed.replayed, n / 2, "{name}: replayed");
+            assert_eq!(replays.get(), n / 2, "{name}: replay callback");
+            assert_eq!(resumed.evaluations.len(), n, "{name}: evaluation count");
+            assert_eq!(calls.get(), n - n / 2, "{name}: fresh evaluations");
+            let (a, b) = (&whole.evaluations[whole.best().unwrap()], &resumed.evaluations[resumed.best().unwrap()]);
+            assert!(same_point(&a.x, &b.x) && a.objective == b.objective, "{name}: {:?} vs {:?}", a.x, b.x);
         }
     }
 

@@ -490,7 +490,8 @@ impl Manifest {
     }
 }
 
-fn write_atomic(path: &Path, text: &str) -> Result<()> {
+/// Write a file atomically (a temporary file renamed over it), so that a reader never sees half of it.
+pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
     let tmp = path.with_extension("tmp");
     {
         let mut f = std::fs::File::create(&tmp).with_context(|| format!("cannot write {}", tmp.display()))?;

@@ -133,6 +133,40 @@ fn fidelity_stages_continue_from_the_previous_best() {
     for f in ["map.png", "map.svg"] {
         assert!(dir.join(f).exists(), "{f}");
     }
+    // interrupted after half its evaluations (and in the middle of writing a line): --resume
+    // replays the recorded half and ends where the whole run ended
+    let lines: Vec<String> = std::fs::read_to_string(dir.join("evaluations.jsonl")).unwrap().lines().map(String::from).collect();
+    let total = lines.len();
+    let kept = total / 2;
+    let mut text = lines[..kept].join("\n");
+    text.push('\n');
+    text.push_str(&lines[kept][..lines[kept].len() / 2]);
+    std::fs::write(dir.join("evaluations.jsonl"), text).unwrap();
+    let _ = std::fs::remove_file(dir.join("best.json"));
+    let resume_args = |extra: &[&str]| {
+        let mut c = bin();
+        c.args(["optimise", "problems/max-torque.toml", "--set", "load.p_max_kPa=20", "--set", "optimise.variables=[\"alpha_deg\", \"l_mm\"]", "--set"]);
+        c.arg(if cfg!(feature = "nlopt") { "optimise.optimisers=[\"slsqp\"]" } else { "optimise.optimisers=[\"sqp\"]" });
+        c.args(["--set", "optimise.starts=1", "--set", "optimise.max_evaluations=40", "--set", "optimise.stages=[{mesh=\"12x4x1\", max_evaluations=20}, {mesh=\"18x8x1\", max_evaluations=20}]"]);
+        c.args(extra).arg("--resume").arg("--out").arg(&dir);
+        c.output().unwrap()
+    };
+    let out = resume_args(&[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains(&format!("resuming: {kept} recorded evaluations")), "{stdout}");
+    let again: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("best.json")).unwrap()).unwrap();
+    assert_eq!(again["objective"], best["objective"], "resumed {again}\nwhole {best}");
+    assert_eq!(again["alpha_deg"], best["alpha_deg"]);
+    assert_eq!(again["evaluations"], best["evaluations"]);
+    // only the evaluations the record lacked were run (and appended)
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(stderr.lines().filter(|l| l.contains("] evaluation ")).count(), total - kept, "{stderr}");
+    assert_eq!(std::fs::read_to_string(dir.join("evaluations.jsonl")).unwrap().lines().filter(|l| l.trim_end().ends_with('}')).count(), total);
+    // resuming another problem is refused
+    let out = resume_args(&["--set", "load.p_max_kPa=25"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("another problem"), "{}", String::from_utf8_lossy(&out.stderr));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -8,7 +8,7 @@ use clap::Args;
 use serde_json::{json, Value};
 
 use crate::evaluate::write_json_atomic;
-use crate::optimise::{build_problem, run_all, starting_points, Objective, RunResult, FEAS_TOL};
+use crate::optimise::{build_problem, starting_points, Objective, RunResult, FEAS_TOL};
 use crate::plot::{line_plot, LinePlot, Series};
 use crate::problem::Problem;
 
@@ -28,6 +28,12 @@ pub struct OptimiseArgs {
     /// (DIR/map.{png,svg}, DIR/map.json). Costs NA·NL evaluations.
     #[arg(long, value_name = "NAxNL")]
     pub map: Option<String>,
+    /// Resume an interrupted optimisation in --out: the evaluations recorded in
+    /// DIR/evaluations.jsonl are replayed (the optimisers are deterministic, so each run asks
+    /// for the same points again) and the runs go on from where they stopped. Refused unless
+    /// DIR/input.json shows the same problem, optimisers and starts.
+    #[arg(long)]
+    pub resume: bool,
 }
 
 pub fn run(args: &OptimiseArgs) -> Result<()> {
@@ -62,12 +68,33 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     );
     let finished: std::sync::Mutex<Vec<RunResult>> = std::sync::Mutex::new(Vec::new());
     let evals_path = args.out.join("evaluations.jsonl");
-    // a new optimisation starts a new log (history.json and best.json are rewritten as well)
-    let _ = std::fs::remove_file(&evals_path);
-    let runs = run_all(
+    let input_path = args.out.join("input.json");
+    let input = json!({ "problem": problem, "optimisers": sec.optimisers, "starts": starts });
+    let recorded = if args.resume {
+        let before: Value = std::fs::read_to_string(&input_path)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .ok_or_else(|| anyhow::anyhow!("--resume: {} is missing or unreadable (was this directory written by `twistopt optimise`?)", input_path.display()))?;
+        if before != serde_json::from_str::<Value>(&input.to_string())? {
+            anyhow::bail!(
+                "--resume: {} records another problem, optimisers or starts than this command; resume with the same problem file and --set options, or use a new --out",
+                input_path.display()
+            );
+        }
+        let rec = read_recorded(&evals_path)?;
+        println!("resuming: {} recorded evaluations of {} runs are replayed", rec.values().map(|v| v.len()).sum::<usize>(), rec.len());
+        rec
+    } else {
+        // a new optimisation starts a new log (history.json and best.json are rewritten as well)
+        let _ = std::fs::remove_file(&evals_path);
+        std::collections::BTreeMap::new()
+    };
+    crate::sweep::write_atomic(&input_path, &serde_json::to_string_pretty(&input)?)?;
+    let runs = crate::optimise::run_all_resumed(
         &op,
         &sec.optimisers,
         &starts,
+        &recorded,
         |r| {
             if let Ok(mut f) = finished.lock() {
                 f.push(r.clone());
@@ -115,6 +142,24 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     }
     println!("wrote history.json, best.json and plots to {} in {:.1} s", args.out.display(), t0.elapsed().as_secs_f64());
     Ok(())
+}
+
+/// The evaluations of DIR/evaluations.jsonl by run, in order (a torn last line is skipped).
+fn read_recorded(path: &std::path::Path) -> Result<std::collections::BTreeMap<String, Vec<crate::optimise::Evaluation>>> {
+    let mut out: std::collections::BTreeMap<String, Vec<crate::optimise::Evaluation>> = Default::default();
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(out),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let Ok(j) = serde_json::from_str::<Value>(line) else { continue };
+        let Some(run) = j.get("run").and_then(|r| r.as_str()).map(String::from) else { continue };
+        if let Ok(e) = serde_json::from_value::<crate::optimise::Evaluation>(j) {
+            out.entry(run).or_default().push(e);
+        }
+    }
+    Ok(out)
 }
 
 /// Write history.json and best.json for the runs finished so far (atomically: an interrupted

@@ -6,6 +6,10 @@
 //!   cargo run --release --example rom_probe -- PRESET N_TRAIN N_TEST K_LIST TAU
 //!   e.g. cargo run --release --example rom_probe -- coarse 32 20 20,40,60,80,120 0
 //!
+//! KP = pressure modes trained (none: element-local pressures), KP_LIST = the pressure mode
+//! counts to test (default: all trained).
+//! Env: FRAME = cartesian | cylindrical | piola (default), KAPPA_OVER_MU (bulk/shear ratio, default 300).
+//!
 //! Output: one line per design and k, then a summary per k (median / 95th percentile / max of
 //! the relative errors of Ω by the letter's rule, of both scenes' end pressures, CPU s per design).
 use std::sync::Arc;
@@ -42,14 +46,27 @@ fn main() {
     let ks: Vec<usize> = a.get(4).map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect()).unwrap_or(vec![20, 40, 60]);
     let tau: f64 = a.get(5).and_then(|s| s.parse().ok()).unwrap_or(0.0);
     let kmax = *ks.iter().max().unwrap();
-    let opts = SceneOptions::new(MeshSpec::preset(preset).unwrap(), NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).unwrap().into());
+    let opts = SceneOptions::new(
+        MeshSpec::preset(preset).unwrap(),
+        NeoHookean::with_ratio(MU_HEICAST_MPA, std::env::var("KAPPA_OVER_MU").ok().and_then(|s| s.parse().ok()).unwrap_or(DEFAULT_KAPPA_OVER_MU)).unwrap().into(),
+    );
+    let mut opts = opts;
+    if std::env::var("PRESSURE").as_deref() == Ok("P0") {
+        opts.formulation.pressure = twistopt_solver::element::PressureSpace::P0;
+    }
     let t = TrainOptions {
         designs: ntrain,
         truncation: Truncation::Modes(kmax),
         ecsw: EcswOptions { tau: 1.0, max_elements: 0, tangent_directions: 0 },
-        frame: if std::env::var_os("CARTESIAN").is_some() { twistopt_solver::rom::Frame::Cartesian } else { twistopt_solver::rom::Frame::Cylindrical },
+        frame: match std::env::var("FRAME").as_deref() {
+            Ok("cartesian") => twistopt_solver::rom::Frame::Cartesian,
+            Ok("cylindrical") => twistopt_solver::rom::Frame::Cylindrical,
+            _ => twistopt_solver::rom::Frame::Piola,
+        },
+        pressure_modes: std::env::var("KP").ok().and_then(|s| s.parse().ok()).map(Truncation::Modes),
         ..TrainOptions::default()
     };
+    let kps: Vec<usize> = std::env::var("KP_LIST").ok().map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect()).unwrap_or_default();
     let t0 = Instant::now();
     let (rom, rep) = train(&opts, &t, |s| eprintln!("{s}")).unwrap();
     println!("trained on {} designs ({} snapshots) in {:.1} s wall; {} modes", ntrain, rep.snapshots, t0.elapsed().as_secs_f64(), rep.modes);
@@ -71,8 +88,13 @@ fn main() {
         .collect();
     let full_cpu: f64 = full.iter().map(|x| x.2).sum::<f64>() / full.len() as f64;
     println!("full model: {full_cpu:.2} CPU s per design (free + blocked)");
-    for &k in &ks {
-        let basis = rom.basis.truncated(k);
+    let combos: Vec<(usize, Option<usize>)> = ks.iter().flat_map(|&k| if kps.is_empty() { vec![(k, None)] } else { kps.iter().map(|&p| (k, Some(p))).collect() }).collect();
+    for &(k, kp) in &combos {
+        let mut basis = rom.basis.truncated(k);
+        if let Some(kp) = kp {
+            basis.pressure = if kp == 0 { None } else { basis.pressure.map(|p| p.truncated(kp)) };
+        }
+        let kp = basis.pressure.as_ref().map_or(0, |p| p.kp);
         let sample = if tau > 0.0 {
             // refit ECSW for this basis on the training states
             let t2 =
@@ -98,7 +120,7 @@ fn main() {
             let e_pf = (end(&rf) - end(ff)) / end(ff);
             let e_pb = (end(&rb) - end(fb)) / end(fb);
             println!(
-                "k={k:3} {}: Ω full {of:.3} ({} / {}, p {pcf:.3}) rom {or:.3} ({} / {}, p {pcr:.3}) err {:+.2}% | p_end err free {:+.2}% blocked {:+.2}%",
+                "k={k:3} kp={kp:2} {}: Ω full {of:.3} ({} / {}, p {pcf:.3}) rom {or:.3} ({} / {}, p {pcr:.3}) err {:+.2}% | p_end err free {:+.2}% blocked {:+.2}%",
                 twistopt::rom::label(d),
                 ff.status,
                 fb.status,
@@ -114,7 +136,7 @@ fn main() {
         }
         let n = designs.len() as f64;
         println!(
-            "SUMMARY k={k} sample={ns}: |Ω err| median {:.2}% p95 {:.2}% max {:.2}%; |p_end err| median {:.2}% p95 {:.2}% max {:.2}%; {:.2} CPU s per design",
+            "SUMMARY k={k} kp={kp} sample={ns}: |Ω err| median {:.2}% p95 {:.2}% max {:.2}%; |p_end err| median {:.2}% p95 {:.2}% max {:.2}%; {:.2} CPU s per design",
             100.0 * pct(&mut eo.clone(), 0.5),
             100.0 * pct(&mut eo.clone(), 0.95),
             100.0 * pct(&mut eo, 1.0),

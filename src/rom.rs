@@ -22,6 +22,10 @@ pub struct TrainOptions {
     /// the components the basis is expressed in
     #[serde(default)]
     pub frame: Frame,
+    /// a reduced pressure space of this many modes (POD of the elements' pressures), or None:
+    /// each element condenses its own pressure, as the full model does
+    #[serde(default)]
+    pub pressure_modes: Option<Truncation>,
 }
 
 impl Default for TrainOptions {
@@ -33,6 +37,7 @@ impl Default for TrainOptions {
             truncation: Truncation::Tail { tol: 1e-6, max: 60 },
             ecsw: EcswOptions { tau: 0.01, max_elements: 400, tangent_directions: 2 },
             frame: Frame::Cylindrical,
+            pressure_modes: Some(Truncation::Modes(10)),
         }
     }
 }
@@ -45,6 +50,8 @@ pub struct Ramp {
     pub states: Vec<(f64, Vec<f64>, Vec<f64>)>,
     /// the nodal unknowns of the loaded states in the basis frame (POD snapshots)
     pub frame_states: Vec<Vec<f64>>,
+    /// the elements' pressure coefficients of the loaded states (pressure POD snapshots)
+    pub pressure_states: Vec<Vec<f64>>,
     pub newton_iterations: usize,
 }
 
@@ -55,6 +62,9 @@ pub struct TrainReport {
     pub snapshots: usize,
     pub modes: usize,
     pub singular_values: Vec<f64>,
+    /// of the pressure snapshots (empty without a reduced pressure space)
+    #[serde(default)]
+    pub pressure_singular_values: Vec<f64>,
     pub sample_elements: usize,
     pub elements: usize,
     pub ecsw_residual: f64,
@@ -115,14 +125,33 @@ pub fn random_designs(count: usize, seed: u64) -> Vec<Design> {
 
 /// The full-order ramp of one scene on one design to its pressure maximum (or `p_max_kpa`),
 /// without the ballooning stop, with every converged state.
-pub fn full_ramp(design: &Design, opts: &SceneOptions, kind: SceneKind, p_max_kpa: f64, frame: Frame) -> Result<Ramp> {
+pub fn full_ramp(design: &Design, opts: &SceneOptions, kind: SceneKind, p_max_kpa: f64, frame: Frame, reference: &[[f64; 3]]) -> Result<Ramp> {
     let geom = ActuatorGeometry::new(design, RangePolicy::TableI)?;
     let mut full = opts.clone();
     full.rom = None;
     let sm = SceneModel::build(&geom, &full, kind)?;
     let (states, its) = crate::scene::ramp_states(&sm, &full, p_max_kpa);
-    let frame_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::to_frame(&sm.model, frame, &s.1)).collect();
-    Ok(Ramp { design: design.clone(), kind, states, frame_states, newton_iterations: its })
+    let frame_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::to_frame(&sm.model, frame, reference, &s.1)).collect::<Result<_, _>>()?;
+    let pressure_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::pressure_snapshot(&sm.model, &s.1, &s.2)).collect::<Result<_, _>>()?;
+    Ok(Ramp { design: design.clone(), kind, states, frame_states, pressure_states, newton_iterations: its })
+}
+
+/// The centre of the Table-I box: the reference design of a [`Frame::Piola`] basis.
+pub fn reference_design() -> Design {
+    let space = DesignSpace::actuator();
+    let x: Vec<f64> = space.params.iter().map(|p| 0.5 * (p.min + p.max)).collect();
+    space.design_from_vec(&x).expect("design vector of the space's size")
+}
+
+/// The node positions of the reference design's mesh (empty unless the frame is Piola).
+pub fn reference_nodes(opts: &SceneOptions, frame: Frame, kind: SceneKind) -> Result<Vec<[f64; 3]>> {
+    if frame != Frame::Piola {
+        return Ok(Vec::new());
+    }
+    let geom = ActuatorGeometry::new(&reference_design(), RangePolicy::TableI)?;
+    let mut full = opts.clone();
+    full.rom = None;
+    Ok(SceneModel::build(&geom, &full, kind)?.model.mesh.nodes.clone())
 }
 
 /// Train a reduced model: full ramps of `t.scenes` on `t.designs` Halton designs, POD of every
@@ -135,10 +164,11 @@ pub fn train(opts: &SceneOptions, t: &TrainOptions, log: impl Fn(&str) + Sync) -
 /// [`train`] on given training designs.
 pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: impl Fn(&str) + Sync) -> Result<(Rom, TrainReport)> {
     let t0 = Instant::now();
+    let reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
     let jobs: Vec<(usize, SceneKind)> = (0..designs.len()).flat_map(|d| t.scenes.iter().map(move |&k| (d, k))).collect();
     let ramps: Vec<Ramp> = jobs
         .par_iter()
-        .filter_map(|&(d, k)| match full_ramp(&designs[d], opts, k, t.p_max_kpa, t.frame) {
+        .filter_map(|&(d, k)| match full_ramp(&designs[d], opts, k, t.p_max_kpa, t.frame, &reference) {
             Ok(r) => {
                 log(&format!("  training design {} ({}) {}: {} states, {} Newton iterations", d, label(&designs[d]), k.name(), r.states.len(), r.newton_iterations));
                 Some(r)
@@ -158,6 +188,14 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
     let t1 = Instant::now();
     let mut basis = Basis::pod(&snaps, t.truncation)?;
     basis.frame = t.frame;
+    basis.reference = reference;
+    if let Some(tr) = t.pressure_modes {
+        let ps: Vec<Vec<f64>> = ramps.iter().flat_map(|r| r.pressure_states.iter().cloned()).collect();
+        let np = opts.formulation.pressure.dim().max(1);
+        let pb = twistopt_solver::rom::PressureBasis::pod(&ps, np, tr)?;
+        log(&format!("  pressure POD: {} snapshots of {} coefficients → {} modes", ps.len(), ps[0].len(), pb.kp));
+        basis.pressure = Some(pb);
+    }
     let pod_time_s = t1.elapsed().as_secs_f64();
     log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snaps.len(), basis.n, basis.k, basis.frame));
     // ECSW over the same states, design by design (each on its own geometry); max_elements = 0:
@@ -190,6 +228,7 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
         snapshots: snaps.len(),
         modes: basis.k,
         singular_values: basis.singular_values.clone(),
+        pressure_singular_values: basis.pressure.as_ref().map(|p| p.singular_values.clone()).unwrap_or_default(),
         sample_elements: fit.sample.elements.len(),
         elements,
         ecsw_residual: fit.residual,

@@ -32,19 +32,27 @@ fn scene(kind: SceneKind) -> (SceneModel, SceneOptions) {
 
 #[test]
 fn reduced_residual_and_tangent_are_the_projected_full_ones() {
-    for (kind, frame) in [(SceneKind::Free, Frame::Cartesian), (SceneKind::Blocked, Frame::Cartesian), (SceneKind::Free, Frame::Cylindrical)] {
+    // the Piola frame's reference: another design's mesh
+    let reference = {
+        let g = ActuatorGeometry::new(&Design::new(9.0, 17.0, 300.0), RangePolicy::TableI).unwrap();
+        SceneModel::build(&g, &opts("coarse"), SceneKind::Free).unwrap().model.mesh.nodes.clone()
+    };
+    for (kind, frame) in [(SceneKind::Free, Frame::Cartesian), (SceneKind::Blocked, Frame::Cartesian), (SceneKind::Free, Frame::Cylindrical), (SceneKind::Blocked, Frame::Piola)] {
         let (sm, _) = scene(kind);
         let model = &sm.model;
         let nn = model.dofs.n_nodal();
         let mut basis = random_basis(nn, 6, 7);
         basis.frame = frame;
+        if frame == Frame::Piola {
+            basis.reference = reference.clone();
+        }
         let sample = Sample::all(model.mesh.n_elements());
         let from = sm.loads(0.0, 0.0);
         let to = sm.loads(30.0, 0.0);
         let rp = RomPath::new(model, &basis, &sample, from.clone(), to.clone(), sm.functionals()).unwrap();
         let m = rp.dim();
         assert_eq!(m, 6 + model.n_reduced() - nn);
-        // Φ is orthonormal in either frame: projecting a lifted state gives it back
+        // in every frame, projecting a lifted state gives it back
         let zt: Vec<f64> = (0..m).map(|i| (i as f64 * 0.37).sin()).collect();
         let back = rp.red.project(&rp.red.lift(&zt));
         assert!(zt.iter().zip(&back).all(|(a, b)| (a - b).abs() < 1e-12), "{frame:?}: project(lift(z)) != z");
@@ -122,4 +130,75 @@ fn hyper_reduced_tangent_is_the_derivative_of_its_residual() {
         }
     }
     let _ = Rom { basis, sample };
+}
+
+/// A reduced pressure space spanning every element's own pressure space (Ψ = I) is the full
+/// model's element-wise condensation: the same residual and tangent. A smaller space (the
+/// constant pressure plus a few smooth fields) has a tangent that is the derivative of its
+/// residual, symmetric.
+#[test]
+fn reduced_pressure_space_is_consistent() {
+    use twistopt_solver::rom::PressureBasis;
+    let (sm, _) = scene(SceneKind::Blocked);
+    let model = &sm.model;
+    let ne = model.mesh.n_elements();
+    let np = 4;
+    let basis = random_basis(model.dofs.n_nodal(), 5, 3);
+    let sample = Sample::all(ne);
+    let z: Vec<f64> = {
+        let m = basis.k + model.n_reduced() - basis.n;
+        (0..m).map(|i| 0.03 * ((i * 29 % 13) as f64 / 13.0 - 0.45)).collect()
+    };
+    let eval = |b: &Basis, s: &Sample, z: &[f64], k: bool| {
+        let rp = RomPath::new(model, b, s, sm.loads(0.0, 0.0), sm.loads(30.0, 0.0), Vec::new()).unwrap();
+        rp.eval(z, 0.6, k, None).unwrap()
+    };
+    let local = eval(&basis, &sample, &z, true);
+    let mut full_space = basis.clone();
+    let n = ne * np;
+    full_space.pressure = Some(PressureBasis { np, kp: n, psi: (0..n * n).map(|i| if i / n == i % n { 1.0 } else { 0.0 }).collect(), singular_values: Vec::new() });
+    let global = eval(&full_space, &sample, &z, true);
+    let rs = local.r.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    for (a, b) in local.r.iter().zip(&global.r) {
+        assert!((a - b).abs() <= 1e-9 * rs, "residual: element-wise {a} vs global full space {b}");
+    }
+    let (kl, kg) = (local.k.unwrap(), global.k.unwrap());
+    let m = kl.nrows();
+    let ks = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| kl[(i, j)].abs()).fold(0.0, f64::max);
+    for i in 0..m {
+        for j in 0..m {
+            assert!((kl[(i, j)] - kg[(i, j)]).abs() <= 1e-8 * ks, "K[{i},{j}]: element-wise {} vs global full space {}", kl[(i, j)], kg[(i, j)]);
+        }
+    }
+    // three pressure modes: constant, and two smooth fields of the element index; every other
+    // element weighted 2
+    let kp = 3;
+    let mut psi = vec![0.0; n * kp];
+    for e in 0..ne {
+        psi[(e * np) * kp] = 1.0;
+        psi[(e * np) * kp + 1] = (e as f64 * 0.3).sin();
+        psi[(e * np + 1) * kp + 2] = (e as f64 * 0.2).cos();
+        psi[(e * np + 3) * kp + 2] = 0.5;
+    }
+    let mut small = basis.clone();
+    small.pressure = Some(PressureBasis { np, kp, psi, singular_values: Vec::new() });
+    let elements: Vec<usize> = (0..ne).step_by(2).collect();
+    let weights = vec![2.0; elements.len()];
+    let s2 = Sample { elements, weights };
+    let ev = eval(&small, &s2, &z, true);
+    let k = ev.k.unwrap();
+    let kmax = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| k[(i, j)].abs()).fold(0.0, f64::max);
+    let h = 1e-6;
+    for j in 0..m {
+        let mut zp = z.clone();
+        zp[j] += h;
+        let mut zm = z.clone();
+        zm[j] -= h;
+        let (rp_, rm_) = (eval(&small, &s2, &zp, false).r, eval(&small, &s2, &zm, false).r);
+        for i in 0..m {
+            let fd = (rp_[i] - rm_[i]) / (2.0 * h);
+            assert!((fd - k[(i, j)]).abs() <= 1e-6 * kmax, "reduced pressure: K[{i},{j}] = {} vs central difference {fd}", k[(i, j)]);
+            assert!((k[(i, j)] - k[(j, i)]).abs() <= 1e-10 * kmax, "reduced pressure: tangent not symmetric at ({i},{j})");
+        }
+    }
 }

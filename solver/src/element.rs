@@ -202,9 +202,37 @@ fn gather<D: Scalar>(form: &Formulation, rule: &HexRule, x0: &[[D; 3]], u: &[[D;
 
 /// Element energy and internal force vector f = ∂E/∂u (3·nn, node-major), generic over the scalar.
 pub fn residual<D: Scalar, M: Hyperelastic>(form: &Formulation, rule: &HexRule, mat: &M, params: &[D], x0: &[[D; 3]], u: &[[D; 3]], f_out: &mut [D]) -> Result<ElementInfo<D>, ElementError> {
+    residual_with(form, rule, mat, params, x0, u, None, f_out)
+}
+
+/// The pressure of an element given from outside: its coefficients in the element's pressure
+/// space (`PressureSpace::dim` of them, in the basis {1, ξ, η, ζ}), e.g. from a pressure field
+/// projected on a global reduced space. The element then contributes the isochoric energy and the
+/// force ∫ (P_iso + p J F⁻ᵀ) : ∇δu; the volumetric energy and its stiffness U'' are the caller's.
+pub type GivenPressure<'a> = Option<&'a [f64]>;
+
+/// [`residual`], optionally with the pressure given ([`GivenPressure`]): the energy returned is
+/// then the isochoric part only.
+#[allow(clippy::too_many_arguments)]
+pub fn residual_with<D: Scalar, M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[D],
+    x0: &[[D; 3]],
+    u: &[[D; 3]],
+    given: GivenPressure,
+    f_out: &mut [D],
+) -> Result<ElementInfo<D>, ElementError> {
     let nn = x0.len();
     let qp = gather(form, rule, x0, u)?;
-    let (theta, pt, _) = project(form.pressure, mat, params, &qp)?;
+    let (theta, pt) = match given {
+        None => {
+            let (theta, pt, _) = project(form.pressure, mat, params, &qp)?;
+            (theta, pt)
+        }
+        Some(pc) => (qp.iter().map(|d| d.j).collect(), qp.iter().map(|d| D::from(given_at(pc, &d.q))).collect()),
+    };
     for v in f_out.iter_mut() {
         *v = D::zero();
     }
@@ -215,7 +243,7 @@ pub fn residual<D: Scalar, M: Hyperelastic>(form: &Formulation, rule: &HexRule, 
         let i1: D = (0..3).map(|i| (0..3).map(|k| d.f[i][k] * d.f[i][k]).sum::<D>()).sum();
         let jm23 = d.j.powf(-2.0 / 3.0);
         let [w, w1, _] = mat.w_iso(params, jm23 * i1);
-        let uv = mat.u_vol(params, theta[gi])[0];
+        let uv = if given.is_some() { D::zero() } else { mat.u_vol(params, theta[gi])[0] };
         energy += (w + uv) * d.wj0;
         // P_iso = W1 J^(-2/3) (2F − 2/3 I1 F^-T);  volumetric: p̃ J F^-T
         let mut p: M3<D> = [[D::zero(); 3]; 3];
@@ -235,6 +263,58 @@ pub fn residual<D: Scalar, M: Hyperelastic>(form: &Formulation, rule: &HexRule, 
         return Err(ElementError::NonFinite(0));
     }
     Ok(ElementInfo { energy, min_det_f: min_j })
+}
+
+/// A given pressure's value at a quadrature point of basis values `q` (P0: the first only).
+#[inline]
+fn given_at(pc: &[f64], q: &[f64; 4]) -> f64 {
+    pc.iter().zip(q).map(|(c, v)| c * v).sum()
+}
+
+/// The dilatation moments of an element in its pressure space: (∫ φ_r J dV, ∫ φ_r φ_s dV, the
+/// smallest det F), φ = {1, ξ, η, ζ}[..np]; the mass matrix is row-major np × np. These are the
+/// element's contributions to the projection of J on a global pressure space.
+pub fn dilatation_moments(form: &Formulation, rule: &HexRule, x0: &[[f64; 3]], u: &[[f64; 3]]) -> Result<(Vec<f64>, Vec<f64>, f64), ElementError> {
+    let np = form.pressure.dim().max(1);
+    let qp = gather(form, rule, x0, u)?;
+    let mut b = vec![0.0; np];
+    let mut m = vec![0.0; np * np];
+    let mut min_j = f64::INFINITY;
+    for d in &qp {
+        min_j = min_j.min(d.j);
+        for r in 0..np {
+            b[r] += d.q[r] * d.j * d.wj0;
+            for s_ in 0..np {
+                m[r * np + s_] += d.q[r] * d.q[s_] * d.wj0;
+            }
+        }
+    }
+    Ok((b, m, min_j))
+}
+
+/// The quadrature rule's pressure-basis values {1, ξ, η, ζ} at each point, with the weights
+/// times det(∂X/∂ξ) of an element (for integrals of a given pressure-space field).
+pub fn pressure_quadrature(form: &Formulation, rule: &HexRule, x0: &[[f64; 3]]) -> Result<Vec<([f64; 4], f64)>, ElementError> {
+    let zero = vec![[0.0; 3]; x0.len()];
+    Ok(gather(form, rule, x0, &zero)?.into_iter().map(|d| (d.q, d.wj0)).collect())
+}
+
+/// The element's discrete pressure p̃ = Π_h U'(Π_h J) as its coefficients in the pressure space
+/// (`PressureSpace::dim` of them; empty without a pressure space): what a pressure snapshot is.
+pub fn pressure_coefficients<M: Hyperelastic>(form: &Formulation, rule: &HexRule, mat: &M, params: &[f64], x0: &[[f64; 3]], u: &[[f64; 3]]) -> Result<Vec<f64>, ElementError> {
+    let np = form.pressure.dim();
+    if np == 0 {
+        return Ok(Vec::new());
+    }
+    let qp = gather(form, rule, x0, u)?;
+    let (_, pt, minv) = project(form.pressure, mat, params, &qp)?;
+    let mut rhs = vec![0.0; np];
+    for (d, p) in qp.iter().zip(&pt) {
+        for r in 0..np {
+            rhs[r] += p * d.wj0 * d.q[r];
+        }
+    }
+    Ok((0..np).map(|r| (0..np).map(|s_| minv[r * np + s_] * rhs[s_]).sum()).collect())
 }
 
 thread_local! {
@@ -278,12 +358,36 @@ pub fn tangent_mixed<M: Hyperelastic>(
     f_out: &mut [f64],
     k_out: &mut [f64],
 ) -> Result<ElementInfo<f64>, ElementError> {
+    tangent_with(form, rule, mat, params, x0, u, u_lin, None, f_out, k_out, None)
+}
+
+/// [`tangent_mixed`], optionally with the pressure given ([`GivenPressure`]; `u_lin` is then
+/// ignored): the tangent is then the Hessian of the isochoric energy plus the pressure's
+/// geometric term p ∂²J/∂u², without U'' (the caller's), and `bv_out` (np × 3nn, row-major)
+/// receives ∂(∫ φ_r J dV)/∂u, the derivative of the dilatation moments.
+#[allow(clippy::too_many_arguments)]
+pub fn tangent_with<M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[f64],
+    x0: &[[f64; 3]],
+    u: &[[f64; 3]],
+    u_lin: Option<&[[f64; 3]]>,
+    given: GivenPressure,
+    f_out: &mut [f64],
+    k_out: &mut [f64],
+    bv_out: Option<&mut Vec<f64>>,
+) -> Result<ElementInfo<f64>, ElementError> {
     let nn = x0.len();
     let nd = 3 * nn;
     let qp = gather(form, rule, x0, u)?;
-    let (theta, pt, minv) = project(form.pressure, mat, params, &qp)?;
+    let (theta, pt, minv) = match given {
+        None => project(form.pressure, mat, params, &qp)?,
+        Some(pc) => (qp.iter().map(|d| d.j).collect(), qp.iter().map(|d| given_at(pc, &d.q)).collect(), Vec::new()),
+    };
     // the volumetric state of the tangent: from the exact projection, or linearised about u_lin
-    let (theta_k, pt_k) = match u_lin {
+    let (theta_k, pt_k) = match u_lin.filter(|_| given.is_none()) {
         None => (theta.clone(), pt.clone()),
         Some(ul) => {
             let jlin: Vec<f64> = qp
@@ -318,7 +422,8 @@ pub fn tangent_mixed<M: Hyperelastic>(
         }
     };
     f_out.iter_mut().for_each(|v| *v = 0.0);
-    let np = form.pressure.dim();
+    // with a given pressure, P0 and None spaces still report the moment of {1}
+    let np = if given.is_some() { form.pressure.dim().max(1) } else { form.pressure.dim() };
     let nq = qp.len();
     let mut bv = vec![0.0; np * nd];
     let mut hmat = vec![0.0; np * np];
@@ -346,8 +451,7 @@ pub fn tangent_mixed<M: Hyperelastic>(
             let jm23 = d.j.powf(-2.0 / 3.0);
             let i1b = jm23 * i1;
             let [w, w1, w2] = mat.w_iso(params, i1b);
-            let uv = mat.u_vol(params, theta[gi])[0];
-            let upp = mat.u_vol(params, theta_k[gi])[2];
+            let (uv, upp) = if given.is_some() { (0.0, 0.0) } else { (mat.u_vol(params, theta[gi])[0], mat.u_vol(params, theta_k[gi])[2]) };
             energy += (w + uv) * d.wj0;
             // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
             let mut gb = [[0.0; 3]; 3];
@@ -392,7 +496,7 @@ pub fn tangent_mixed<M: Hyperelastic>(
                     for k in 0..3 {
                         for cl in 0..3 {
                             let mut v = pj_k * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
-                            if np == 0 {
+                            if np == 0 && given.is_none() {
                                 v += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
                             }
                             a[3 * i + cj][3 * k + cl] += v;
@@ -441,7 +545,11 @@ pub fn tangent_mixed<M: Hyperelastic>(
             }
         }
     });
-    if np > 0 {
+    if let Some(out) = bv_out {
+        out.clear();
+        out.extend_from_slice(&bv);
+    }
+    if np > 0 && given.is_none() {
         // K += Bvᵀ (M⁻¹ H M⁻¹) Bv
         let mut c = vec![0.0; np * np];
         for r in 0..np {

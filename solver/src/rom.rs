@@ -29,6 +29,7 @@ use crate::adjoint::{BodyState, Functional, State};
 use crate::continuation::{elem_eval, Eval, EvalFailure, PathModel};
 use crate::dofmap::{BodyDof, BodyKin, Comp};
 use crate::element::{self, ElementError};
+use crate::material::Hyperelastic;
 use crate::model::{Loads, Model, SolveError};
 use crate::shape::HexRule;
 use crate::surface;
@@ -48,6 +49,14 @@ pub enum RomError {
     Svd,
     #[error("the basis has {0} rows but the model has {1} nodal unknowns")]
     BasisSize(usize, usize),
+    #[error("the Piola frame needs the reference mesh's {0} node positions, the basis has {1}")]
+    Reference(usize, usize),
+    #[error("the map from the reference mesh is singular or inverted at node {0} (det {1:.3e})")]
+    MapJacobian(usize, f64),
+    #[error("the pressure basis has {0} rows, the mesh needs {1} ({2} per element)")]
+    PressureSize(usize, usize, usize),
+    #[error("the reduced pressure space's mass matrix is singular on this sample")]
+    PressureMass,
     #[error("element {0} in the sample, but the mesh has {1} elements")]
     SampleElement(usize, usize),
     #[error("element evaluation failed in a training snapshot: {0}")]
@@ -76,6 +85,14 @@ pub enum Frame {
     /// position: a displacement field that rotates with the reference geometry (e.g. the same
     /// motion of two designs whose sections are pre-twisted differently) has the same components
     Cylindrical,
+    /// Components on a reference mesh of the same topology ([`Basis::reference`]), pushed
+    /// forward to each model by the contravariant Piola map of the nodal map X_ref → X:
+    /// u = J ũ / det J with J = ∂X/∂X_ref at each node (averaged over the elements that share
+    /// it). div u = div ũ / det J, so a mode that is isochoric on the reference stays nearly
+    /// isochoric on every geometry of the family: without it, a basis shared by geometries locks
+    /// volumetrically when the material is nearly incompressible (the reduced model is too stiff
+    /// and misses its limit points).
+    Piola,
 }
 
 /// An orthonormal basis of the nodal unknowns: V (n × k), stored row-major, in the components
@@ -87,10 +104,56 @@ pub struct Basis {
     pub frame: Frame,
     pub n: usize,
     pub k: usize,
+    /// the reference mesh's node positions (the [`Frame::Piola`] frame only; empty otherwise)
+    #[serde(default)]
+    pub reference: Vec<[f64; 3]>,
     /// row-major: entry (i, j) at v[i k + j]
     pub v: Vec<f64>,
     /// every singular value of the snapshot matrix (not only the kept ones)
     pub singular_values: Vec<f64>,
+    /// a reduced pressure space (None: each element condenses its own pressure, as the full model)
+    #[serde(default)]
+    pub pressure: Option<PressureBasis>,
+}
+
+/// A reduced pressure space: modes of the elements' discontinuous pressure coefficients
+/// (`np` per element, element-major: row e·np + r), shared by every geometry of the mesh. With
+/// it, the reduced model projects the dilatation J and the pressure U'(θ) on these kp modes
+/// (a global three-field Hu–Washizu condensation) instead of each element's own pressure
+/// space: the incompressibility constraint then has kp components, not np per element, and a
+/// basis shared by many geometries no longer locks.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PressureBasis {
+    /// pressure coefficients per element
+    pub np: usize,
+    pub kp: usize,
+    /// row-major ((n_elements · np) × kp)
+    pub psi: Vec<f64>,
+    pub singular_values: Vec<f64>,
+}
+
+impl PressureBasis {
+    /// POD of pressure snapshots ([`crate::element::pressure_coefficients`] of every element,
+    /// element-major), with `np` coefficients per element.
+    pub fn pod(snapshots: &[Vec<f64>], np: usize, trunc: Truncation) -> Result<PressureBasis, RomError> {
+        let b = Basis::pod(snapshots, trunc)?;
+        Ok(PressureBasis { np, kp: b.k, psi: b.v, singular_values: b.singular_values })
+    }
+    /// Ψ_e (np × kp, row-major): element e's block.
+    #[inline]
+    pub fn block(&self, e: usize) -> &[f64] {
+        &self.psi[e * self.np * self.kp..(e + 1) * self.np * self.kp]
+    }
+    /// The first kp modes only.
+    pub fn truncated(&self, kp: usize) -> PressureBasis {
+        let kp = kp.min(self.kp);
+        let rows = self.psi.len() / self.kp.max(1);
+        let mut psi = vec![0.0; rows * kp];
+        for i in 0..rows {
+            psi[i * kp..(i + 1) * kp].copy_from_slice(&self.psi[i * self.kp..i * self.kp + kp]);
+        }
+        PressureBasis { np: self.np, kp, psi, singular_values: self.singular_values.clone() }
+    }
 }
 
 impl Basis {
@@ -132,7 +195,7 @@ impl Basis {
                 v[i * k + j] = u[(i, j)];
             }
         }
-        Ok(Basis { frame: Frame::Cartesian, n, k, v, singular_values: s })
+        Ok(Basis { frame: Frame::Cartesian, n, k, reference: Vec::new(), v, singular_values: s, pressure: None })
     }
 
     /// Row i of V.
@@ -166,7 +229,7 @@ impl Basis {
         for i in 0..self.n {
             v[i * k..(i + 1) * k].copy_from_slice(&self.row(i)[..k]);
         }
-        Basis { frame: self.frame, n: self.n, k, v, singular_values: self.singular_values.clone() }
+        Basis { frame: self.frame, n: self.n, k, reference: self.reference.clone(), v, singular_values: self.singular_values.clone(), pressure: self.pressure.clone() }
     }
 }
 
@@ -192,15 +255,80 @@ pub struct Reduction<'a> {
     pub basis: &'a Basis,
     /// Φ (n × k, row-major)
     phi: std::borrow::Cow<'a, [f64]>,
+    /// the frame's per-node maps (None: Cartesian)
+    maps: Option<FrameMaps>,
 }
 
-/// The per-node rotations T of a frame for a model's nodal unknowns: for each free node, its
-/// three unknowns and the 3×3 matrix whose columns are the frame's unit vectors (None for the
-/// Cartesian frame).
-fn frame_rotations(model: &Model, frame: Frame) -> Option<Vec<([usize; 3], [[f64; 3]; 3])>> {
+/// Per-node frame maps: for each free node, its three unknowns, the 3×3 matrix T (model
+/// components = T · frame components) and T⁻¹.
+type FrameMaps = Vec<([usize; 3], [[f64; 3]; 3], [[f64; 3]; 3])>;
+
+fn inv3(m: &[[f64; 3]; 3]) -> ([[f64; 3]; 3], f64) {
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    let mut r = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            let (i1, i2) = ((j + 1) % 3, (j + 2) % 3);
+            let (j1, j2) = ((i + 1) % 3, (i + 2) % 3);
+            r[i][j] = (m[i1][j1] * m[i2][j2] - m[i1][j2] * m[i2][j1]) / det;
+        }
+    }
+    (r, det)
+}
+
+/// J = ∂X/∂X_ref at every node of `mesh` for the nodal map from `reference` (node positions of
+/// a mesh with the same connectivity): the isoparametric ∂X/∂ξ (∂X_ref/∂ξ)⁻¹ at each element's
+/// nodes, averaged over the elements that share a node.
+pub fn nodal_map_jacobians(mesh: &crate::mesh::Mesh, reference: &[[f64; 3]]) -> Result<Vec<[[f64; 3]; 3]>, RomError> {
+    if reference.len() != mesh.n_nodes() {
+        return Err(RomError::Reference(mesh.n_nodes(), reference.len()));
+    }
+    let kind = mesh.kind;
+    let shapes: Vec<Vec<[f64; 3]>> = kind.natural_coords().iter().map(|c| crate::shape::hex_shape(kind, [c[0] as f64, c[1] as f64, c[2] as f64]).1).collect();
+    let mut sum = vec![[[0.0; 3]; 3]; mesh.n_nodes()];
+    let mut count = vec![0u32; mesh.n_nodes()];
+    for e in 0..mesh.n_elements() {
+        let el = mesh.element(e);
+        for (a, dn) in shapes.iter().enumerate() {
+            let (mut gx, mut gr) = ([[0.0; 3]; 3], [[0.0; 3]; 3]);
+            for (b, &nb) in el.iter().enumerate() {
+                for i in 0..3 {
+                    for j in 0..3 {
+                        gx[i][j] += mesh.nodes[nb][i] * dn[b][j];
+                        gr[i][j] += reference[nb][i] * dn[b][j];
+                    }
+                }
+            }
+            let (gri, det) = inv3(&gr);
+            if !(det.is_finite() && det > 0.0) {
+                return Err(RomError::MapJacobian(el[a], det));
+            }
+            let n = el[a];
+            for i in 0..3 {
+                for j in 0..3 {
+                    sum[n][i][j] += (0..3).map(|m| gx[i][m] * gri[m][j]).sum::<f64>();
+                }
+            }
+            count[n] += 1;
+        }
+    }
+    Ok(sum
+        .into_iter()
+        .zip(count)
+        .map(|(mut m, c)| {
+            let c = c.max(1) as f64;
+            m.iter_mut().flatten().for_each(|x| *x /= c);
+            m
+        })
+        .collect())
+}
+
+/// The per-node maps of a frame for a model's free nodes (None for the Cartesian frame).
+/// `reference`: the reference mesh's node positions ([`Frame::Piola`] only).
+fn frame_maps(model: &Model, frame: Frame, reference: &[[f64; 3]]) -> Result<Option<FrameMaps>, RomError> {
     match frame {
-        Frame::Cartesian => None,
-        Frame::Cylindrical => Some(
+        Frame::Cartesian => Ok(None),
+        Frame::Cylindrical => Ok(Some(
             model
                 .dofs
                 .free_nodes()
@@ -209,29 +337,69 @@ fn frame_rotations(model: &Model, frame: Frame) -> Option<Vec<([usize; 3], [[f64
                     let x = model.mesh.nodes[n];
                     let r = (x[0] * x[0] + x[1] * x[1]).sqrt();
                     let (c, s) = if r > 1e-12 { (x[0] / r, x[1] / r) } else { (1.0, 0.0) };
-                    // columns e_r, e_θ, e_z
-                    (k, [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+                    // columns e_r, e_θ, e_z; T⁻¹ = Tᵀ
+                    (k, [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
                 })
                 .collect(),
-        ),
+        )),
+        Frame::Piola => {
+            let jac = nodal_map_jacobians(&model.mesh, reference)?;
+            let mut out = Vec::new();
+            for (n, k) in model.dofs.free_nodes() {
+                let (ji, det) = inv3(&jac[n]);
+                if !(det.is_finite() && det > 0.0) {
+                    return Err(RomError::MapJacobian(n, det));
+                }
+                // T = J / det J, T⁻¹ = det J · J⁻¹
+                let t = jac[n].map(|r| r.map(|x| x / det));
+                let ti = ji.map(|r| r.map(|x| x * det));
+                out.push((k, t, ti));
+            }
+            Ok(Some(out))
+        }
     }
 }
 
+/// A pressure snapshot of a model state (q, prescribed values): every element's discrete
+/// pressure coefficients ([`element::pressure_coefficients`]), element-major, `np` = max(1, the
+/// pressure space's dimension) per element (a pure-displacement element's pressure U'(J) is
+/// reported by its mean).
+pub fn pressure_snapshot(model: &Model, q: &[f64], presc: &[f64]) -> Result<Vec<f64>, ElementError> {
+    let x0 = &model.mesh.nodes;
+    let kin = model.dofs.body_kinematics(q, presc);
+    let u = model.dofs.expand(x0, q, presc, &kin);
+    let rule = model.form.rule();
+    let np = model.form.pressure.dim();
+    let mut out = Vec::with_capacity(model.mesh.n_elements() * np.max(1));
+    for e in 0..model.mesh.n_elements() {
+        let conn = model.mesh.element(e);
+        let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
+        let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
+        if np == 0 {
+            let (b, m, _) = element::dilatation_moments(&model.form, &rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?;
+            out.push(model.material.u_vol(&model.params, b[0] / m[0])[1]);
+        } else {
+            out.extend(element::pressure_coefficients(&model.form, &rule, &model.material, &model.params, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?);
+        }
+    }
+    Ok(out)
+}
+
 /// The nodal unknowns q (first n_nodal entries of a model state) in the components of `frame`:
-/// Tᵀ q (what POD snapshots of a frame are).
-pub fn to_frame(model: &Model, frame: Frame, q: &[f64]) -> Vec<f64> {
+/// T⁻¹ q (what POD snapshots of a frame are). `reference`: see [`Basis::reference`].
+pub fn to_frame(model: &Model, frame: Frame, reference: &[[f64; 3]], q: &[f64]) -> Result<Vec<f64>, RomError> {
     let n = model.dofs.n_nodal();
     let mut y = q[..n].to_vec();
-    if let Some(rots) = frame_rotations(model, frame) {
-        for (k, t) in rots {
+    if let Some(maps) = frame_maps(model, frame, reference)? {
+        for (k, _, ti) in maps {
             if k.iter().all(|&i| i < n) {
-                for c in 0..3 {
-                    y[k[c]] = (0..3).map(|r| t[r][c] * q[k[r]]).sum();
+                for r in 0..3 {
+                    y[k[r]] = (0..3).map(|c| ti[r][c] * q[k[c]]).sum();
                 }
             }
         }
     }
-    y
+    Ok(y)
 }
 
 impl<'a> Reduction<'a> {
@@ -240,12 +408,13 @@ impl<'a> Reduction<'a> {
         if basis.n != nn {
             return Err(RomError::BasisSize(basis.n, nn));
         }
-        let phi = match frame_rotations(model, basis.frame) {
+        let maps = frame_maps(model, basis.frame, &basis.reference)?;
+        let phi = match &maps {
             None => std::borrow::Cow::Borrowed(basis.v.as_slice()),
             Some(rots) => {
                 let k = basis.k;
                 let mut phi = basis.v.clone();
-                for (idx, t) in rots {
+                for &(idx, t, _) in rots {
                     if idx.iter().any(|&i| i >= nn) {
                         continue;
                     }
@@ -259,7 +428,7 @@ impl<'a> Reduction<'a> {
                 std::borrow::Cow::Owned(phi)
             }
         };
-        Ok(Reduction { model, basis, phi })
+        Ok(Reduction { model, basis, phi, maps })
     }
     /// Row i of Φ.
     #[inline]
@@ -278,18 +447,31 @@ impl<'a> Reduction<'a> {
         q.extend_from_slice(&z[k..]);
         q
     }
-    /// z of the orthogonal projection of q.
+    /// z of q's nodal unknowns in the frame's components (T⁻¹ q), projected orthogonally on V:
+    /// z = Vᵀ T⁻¹ q (the orthogonal projection of q on Φ when T is a rotation; in every frame,
+    /// project(lift(z)) = z).
     pub fn project(&self, q: &[f64]) -> Vec<f64> {
         let k = self.basis.k;
-        let mut z = vec![0.0; k];
-        for (i, &qi) in q.iter().enumerate().take(self.basis.n) {
-            if qi != 0.0 {
-                for (zj, vj) in z.iter_mut().zip(self.phi_row(i)) {
-                    *zj += vj * qi;
+        let n = self.basis.n;
+        let mut y = q[..n].to_vec();
+        if let Some(maps) = &self.maps {
+            for &(idx, _, ti) in maps {
+                if idx.iter().all(|&i| i < n) {
+                    for r in 0..3 {
+                        y[idx[r]] = (0..3).map(|c| ti[r][c] * q[idx[c]]).sum();
+                    }
                 }
             }
         }
-        z.extend_from_slice(&q[self.basis.n..]);
+        let mut z = vec![0.0; k];
+        for (i, &yi) in y.iter().enumerate() {
+            if yi != 0.0 {
+                for (zj, vj) in z.iter_mut().zip(self.basis.row(i)) {
+                    *zj += vj * yi;
+                }
+            }
+        }
+        z.extend_from_slice(&q[n..]);
         z
     }
     /// Row of ∂q_i/∂z added into `out` with factor `c`.
@@ -633,6 +815,16 @@ pub struct RomPath<'a> {
     /// the cavity volume is the control functional (when the model has a cavity)
     pub volume_control: bool,
     rule: HexRule,
+    /// the reduced pressure space's data on this geometry and sample
+    mixed: Option<Mixed>,
+}
+
+/// State-independent data of a reduced pressure space on one geometry and sample: for each
+/// sampled element its quadrature (pressure-basis values, weight × det) and mass Ψ_eᵀ-ready
+/// moments, and the inverse of the weighted reduced mass Σ w Ψ_eᵀ M_e Ψ_e.
+struct Mixed {
+    quad: Vec<Vec<([f64; 4], f64)>>,
+    mass_inv: Mat<f64>,
 }
 
 /// A factorised reduced tangent.
@@ -662,7 +854,40 @@ impl<'a> RomPath<'a> {
         if let Some(&e) = sample.elements.iter().find(|&&e| e >= ne) {
             return Err(RomError::SampleElement(e, ne));
         }
-        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule: model.form.rule() })
+        let rule = model.form.rule();
+        let mixed = match &basis.pressure {
+            None => None,
+            Some(pb) => {
+                let need = ne * pb.np;
+                if pb.psi.len() != need * pb.kp || pb.np != model.form.pressure.dim().max(1) {
+                    return Err(RomError::PressureSize(pb.psi.len() / pb.kp.max(1), need, model.form.pressure.dim().max(1)));
+                }
+                let np = pb.np;
+                let kp = pb.kp;
+                let mut quad = Vec::with_capacity(sample.elements.len());
+                let mut mr = Mat::<f64>::zeros(kp, kp);
+                for (&e, &w) in sample.elements.iter().zip(&sample.weights) {
+                    let xe = model.mesh.element_coords(e);
+                    let qd = element::pressure_quadrature(&model.form, &rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
+                    let mut me = vec![0.0; np * np];
+                    for (phi, wj) in &qd {
+                        for r in 0..np {
+                            for c in 0..np {
+                                me[r * np + c] += phi[r] * phi[c] * wj;
+                            }
+                        }
+                    }
+                    let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
+                    let mm = faer::MatRef::from_row_major_slice(&me, np, np);
+                    faer::linalg::matmul::matmul(mr.as_mut(), faer::Accum::Add, pe.transpose(), (mm * pe).as_ref(), w, faer::Par::Seq);
+                    quad.push(qd);
+                }
+                let llt = Llt::new(mr.as_ref(), Side::Lower).map_err(|_| RomError::PressureMass)?;
+                let mass_inv = llt.solve(Mat::<f64>::identity(kp, kp));
+                Some(Mixed { quad, mass_inv })
+            }
+        };
+        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed })
     }
 
     pub fn loads(&self, lam: f64) -> Loads {
@@ -689,14 +914,24 @@ impl<'a> RomPath<'a> {
         let nd = 3 * nn;
         let mut f = vec![0.0; nd];
         let mut ke = vec![0.0; if want_k { nd * nd } else { 0 }];
-        for (&e, &w) in self.sample.elements.iter().zip(&self.sample.weights) {
+        // a reduced pressure space: project J, then U'(θ), on it (the volumetric energy, the
+        // element pressures, and the low-rank volumetric stiffness B_rᵀ M⁻¹ H M⁻¹ B_r)
+        let pressure = match (&self.mixed, &self.red.basis.pressure) {
+            (Some(mx), Some(pb)) => Some(self.reduced_pressure(mx, pb, &u, &mut energy, &mut min_det)?),
+            _ => None,
+        };
+        let kp = self.red.basis.pressure.as_ref().map_or(0, |p| p.kp);
+        let mut b_red = (want_k && pressure.is_some()).then(|| Mat::<f64>::zeros(kp, m));
+        let mut bv = Vec::new();
+        for (s_i, (&e, &w)) in self.sample.elements.iter().zip(&self.sample.weights).enumerate() {
             let conn = model.mesh.element(e);
             let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
             let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
+            let given = pressure.as_ref().map(|p| &p.0[s_i][..]);
             let info = if want_k {
-                element::tangent_mixed(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, None, &mut f, &mut ke)
+                element::tangent_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, None, given, &mut f, &mut ke, given.map(|_| &mut bv))
             } else {
-                element::residual(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, &mut f)
+                element::residual_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, given, &mut f)
             }
             .map_err(|err| crate::model::relabel(err, e))?;
             energy += w * info.energy;
@@ -717,6 +952,17 @@ impl<'a> RomPath<'a> {
                 let kj = km * jm;
                 faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, jm.transpose(), kj.as_ref(), w, faer::Par::Seq);
             }
+            if let (Some(br), Some(pb)) = (b_red.as_mut(), &self.red.basis.pressure) {
+                // B_r += w Ψ_eᵀ (Bv_e J_e)
+                let np = pb.np;
+                let bvm = faer::MatRef::from_row_major_slice(&bv, np, nd);
+                let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
+                faer::linalg::matmul::matmul(br.as_mut(), faer::Accum::Add, pe.transpose(), (bvm * jm).as_ref(), w, faer::Par::Seq);
+            }
+        }
+        if let (Some(kz), Some(br), Some((_, h)), Some(mx)) = (kz.as_mut(), b_red.as_ref(), pressure.as_ref(), self.mixed.as_ref()) {
+            let c = &mx.mass_inv * h * &mx.mass_inv;
+            faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, br.transpose(), (&c * br).as_ref(), 1.0, faer::Par::Seq);
         }
         // cavity: exact volume, −p ∂V/∂z and −p ∂²V/∂z² over every face and boundary edge
         let mut volume = 0.0;
@@ -829,6 +1075,68 @@ impl<'a> RomPath<'a> {
         }
         let scale = scale_sq.sqrt().max(p.abs() * dvol.iter().map(|x| x * x).sum::<f64>().sqrt());
         Ok((r, kz, RomState { q, u, kin, r_body, volume, dvol, energy }, scale, min_det))
+    }
+
+    /// The projections on a reduced pressure space at displacement u: θ = Π_r J, then
+    /// p = Π_r U'(θ). Returns each sampled element's pressure coefficients and the reduced
+    /// H = Σ w Ψ_eᵀ (∫ φ φᵀ U''(θ)) Ψ_e; adds the volumetric energy.
+    fn reduced_pressure(&self, mx: &Mixed, pb: &PressureBasis, u: &[[f64; 3]], energy: &mut f64, min_det: &mut f64) -> Result<(Vec<Vec<f64>>, Mat<f64>), ElementError> {
+        let model = self.red.model;
+        let x0 = &model.mesh.nodes;
+        let (np, kp) = (pb.np, pb.kp);
+        let mut b = vec![0.0; kp];
+        for (&e, &w) in self.sample.elements.iter().zip(&self.sample.weights) {
+            let conn = model.mesh.element(e);
+            let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
+            let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
+            let (be, _, mj) = element::dilatation_moments(&model.form, &self.rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?;
+            *min_det = min_det.min(mj);
+            let pe = pb.block(e);
+            for r in 0..np {
+                for (bj, psi) in b.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
+                    *bj += w * psi * be[r];
+                }
+            }
+        }
+        let coef = |v: &[f64]| -> Vec<f64> { (0..kp).map(|i| (0..kp).map(|j| mx.mass_inv[(i, j)] * v[j]).sum()).collect() };
+        let c = coef(&b);
+        let mut rr = vec![0.0; kp];
+        let mut h = Mat::<f64>::zeros(kp, kp);
+        for (s_i, (&e, &w)) in self.sample.elements.iter().zip(&self.sample.weights).enumerate() {
+            let pe = pb.block(e);
+            let th: Vec<f64> = (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&c).map(|(a, b)| a * b).sum()).collect();
+            let mut re = vec![0.0; np];
+            let mut he = vec![0.0; np * np];
+            for (phi, wj) in &mx.quad[s_i] {
+                let t: f64 = (0..np).map(|r| th[r] * phi[r]).sum();
+                if !(t > 0.0) {
+                    return Err(ElementError::Inverted(e));
+                }
+                *min_det = min_det.min(t);
+                let [uv, up, upp] = model.material.u_vol(&model.params, t);
+                *energy += w * uv * wj;
+                for r in 0..np {
+                    re[r] += phi[r] * up * wj;
+                    for c2 in 0..np {
+                        he[r * np + c2] += phi[r] * phi[c2] * upp * wj;
+                    }
+                }
+            }
+            for r in 0..np {
+                for (ri, psi) in rr.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
+                    *ri += w * psi * re[r];
+                }
+            }
+            let pm = faer::MatRef::from_row_major_slice(pe, np, kp);
+            let hm = faer::MatRef::from_row_major_slice(&he, np, np);
+            faer::linalg::matmul::matmul(h.as_mut(), faer::Accum::Add, pm.transpose(), (hm * pm).as_ref(), w, faer::Par::Seq);
+        }
+        let pi = coef(&rr);
+        let pcs = self.sample.elements.iter().map(|&e| {
+            let pe = pb.block(e);
+            (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&pi).map(|(a, b)| a * b).sum()).collect()
+        });
+        Ok((pcs.collect(), h))
     }
 
     /// The reduced load of a unit cavity pressure, ∂V/∂z less the caps' areas when they carry no

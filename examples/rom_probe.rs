@@ -6,6 +6,7 @@
 //!   cargo run --release --example rom_probe -- PRESET N_TRAIN N_TEST K_LIST TAU
 //!   e.g. cargo run --release --example rom_probe -- coarse 32 20 20,40,60,80,120 0
 //!
+//! TANGENTS = tangent directions in the ECSW fit (default 0).
 //! KP = pressure modes trained (none: element-local pressures), KP_LIST = the pressure mode
 //! counts to test (default: all trained).
 //! Env: FRAME = cartesian | cylindrical | piola (default), KAPPA_OVER_MU (bulk/shear ratio, default 300).
@@ -16,7 +17,7 @@ use std::sync::Arc;
 use std::time::Instant;
 use twistopt::geometry::{ActuatorGeometry, RangePolicy};
 use twistopt::meshing::MeshSpec;
-use twistopt::rom::{random_designs, train, TrainOptions};
+use twistopt::rom::{random_designs, TrainOptions};
 use twistopt::scene::{energy_density, run_pressure, SceneKind, SceneOptions, SceneResult, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
 use twistopt_solver::material::NeoHookean;
 use twistopt_solver::rom::{EcswOptions, Rom, Sample, Truncation};
@@ -68,7 +69,9 @@ fn main() {
     };
     let kps: Vec<usize> = std::env::var("KP_LIST").ok().map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect()).unwrap_or_default();
     let t0 = Instant::now();
-    let (rom, rep) = train(&opts, &t, |s| eprintln!("{s}")).unwrap();
+    let log = |s: &str| eprintln!("{s}");
+    let ramps = twistopt::rom::training_ramps(&opts, &t, &twistopt::rom::training_designs(ntrain), &log).unwrap();
+    let (rom, rep) = twistopt::rom::from_ramps(&opts, &t, &ramps, &log).unwrap();
     println!("trained on {} designs ({} snapshots) in {:.1} s wall; {} modes", ntrain, rep.snapshots, t0.elapsed().as_secs_f64(), rep.modes);
     let s0 = rep.singular_values[0];
     println!(
@@ -96,10 +99,11 @@ fn main() {
         }
         let kp = basis.pressure.as_ref().map_or(0, |p| p.kp);
         let sample = if tau > 0.0 {
-            // refit ECSW for this basis on the training states
-            let t2 =
-                TrainOptions { designs: ntrain, truncation: Truncation::Modes(k), ecsw: EcswOptions { tau, max_elements: 10_000, tangent_directions: 2 }, frame: t.frame, ..TrainOptions::default() };
-            train(&opts, &t2, |_| {}).unwrap().0.sample
+            // ECSW for this basis on the training states
+            let e = EcswOptions { tau, max_elements: 100_000, tangent_directions: std::env::var("TANGENTS").ok().and_then(|s| s.parse().ok()).unwrap_or(0) };
+            let fit = twistopt::rom::fit_sample(&opts, &basis, &ramps, &e).unwrap();
+            println!("ECSW k={k} kp={kp}: {} elements, residual {:.2e}", fit.sample.elements.len(), fit.residual);
+            fit.sample
         } else {
             Sample::all(rep.elements)
         };

@@ -74,6 +74,24 @@ pub fn process_cpu_time_s() -> f64 {
         .unwrap_or(f64::NAN)
 }
 
+/// What model a result comes from: the full FE model, or a reduced one (its directory, sizes and
+/// the errors measured when it was trained).
+pub fn fidelity_json(v: &crate::problem::Validated) -> Value {
+    match &v.rom {
+        None => json!({ "model": "full" }),
+        Some((rom, m)) => json!({
+            "model": "reduced",
+            "modes": rom.basis.k,
+            "pressure_modes": rom.basis.pressure.as_ref().map_or(0, |p| p.kp),
+            "sample_elements": rom.sample.elements.len(),
+            "elements": m.report.elements,
+            "format_version": m.format_version,
+            "training_designs": m.report.training_designs.len(),
+            "validation": m.validation.as_ref().map(|x| json!({ "designs": x["designs"], "omega_rel_error": x["omega_rel_error"], "p_end_rel_error": x["p_end_rel_error"] })),
+        }),
+    }
+}
+
 /// Relative tolerance for matching recorded pressures to requested ones.
 const P_TOL: f64 = 1e-9;
 
@@ -506,6 +524,7 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
     result.insert("problem".into(), serde_json::to_value(problem)?);
     result.insert("design".into(), design);
     result.insert("mesh".into(), mesh);
+    result.insert("fidelity".into(), fidelity_json(&v));
     result.insert("material".into(), json!({"model": "Neo-Hookean", "mu_MPa": problem.material.mu_mpa, "kappa_MPa": problem.material.mu_mpa * problem.material.kappa_over_mu}));
     result.insert("scenes".into(), Value::Object(scenes));
     for (k, val) in top {

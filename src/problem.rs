@@ -286,11 +286,15 @@ pub struct FidelitySection {
     pub preset: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh: Option<String>,
+    /// a reduced-order model directory (`twistopt rom train`): the scenes run on it instead of
+    /// the full model; it must have been trained for this mesh, element, material and scenes
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom: Option<String>,
 }
 
 impl Default for FidelitySection {
     fn default() -> Self {
-        FidelitySection { preset: Some("default".into()), mesh: None }
+        FidelitySection { preset: Some("default".into()), mesh: None, rom: None }
     }
 }
 
@@ -337,6 +341,8 @@ pub struct Validated {
     pub material: Material,
     pub scenes: Vec<SceneKind>,
     pub load: LoadPlan,
+    /// the reduced model of `fidelity.rom`, loaded and checked against the problem
+    pub rom: Option<(std::sync::Arc<twistopt_solver::rom::Rom>, crate::rom::Manifest)>,
 }
 
 impl Problem {
@@ -446,7 +452,19 @@ impl Problem {
             }
             (None, None) => MeshSpec::preset("default").map_err(|e| anyhow!("fidelity: {e}"))?,
         };
-        Ok(Validated { geometry, mesh, material, scenes, load })
+        let mut v = Validated { geometry, mesh, material, scenes, load, rom: None };
+        if let Some(dir) = &self.fidelity.rom {
+            let (rom, manifest) = crate::rom::load(Path::new(dir), &self.scene_options(&v)).map_err(|e| anyhow!("fidelity.rom: {e:#}"))?;
+            if let Some(why) = manifest
+                .design_box
+                .iter()
+                .find_map(|p| v.geometry.design.values.get(&p.name).filter(|&&x| x < p.min - 1e-9 || x > p.max + 1e-9).map(|x| format!("{} = {x} outside [{}, {}]", p.name, p.min, p.max)))
+            {
+                bail!("fidelity.rom: the design is outside the reduced model's training box ({why}); use the full model");
+            }
+            v.rom = Some((std::sync::Arc::new(rom), manifest));
+        }
+        Ok(v)
     }
 
     /// Scene options for the validated problem.
@@ -456,6 +474,10 @@ impl Problem {
         o.ballooning_limit_mm = self.scenes.ballooning_limit_mm;
         o.keep_fields = self.output.vtu;
         o.cap_load = self.scenes.cap_load;
+        if let Some((rom, m)) = &v.rom {
+            o.rom = Some(rom.clone());
+            o.rom_box = m.design_box.clone();
+        }
         o
     }
 }

@@ -164,6 +164,16 @@ pub fn train(opts: &SceneOptions, t: &TrainOptions, log: impl Fn(&str) + Sync) -
 /// [`train`] on given training designs.
 pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: impl Fn(&str) + Sync) -> Result<(Rom, TrainReport)> {
     let t0 = Instant::now();
+    let ramps = training_ramps(opts, t, designs, &log)?;
+    let snapshot_time_s = t0.elapsed().as_secs_f64();
+    let (rom, mut report) = from_ramps(opts, t, &ramps, &log)?;
+    report.training_designs = designs.to_vec();
+    report.snapshot_time_s = snapshot_time_s;
+    Ok((rom, report))
+}
+
+/// The full-order ramps of `t.scenes` on each design (a failed ramp is logged and skipped).
+pub fn training_ramps(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: &(impl Fn(&str) + Sync)) -> Result<Vec<Ramp>> {
     let reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
     let jobs: Vec<(usize, SceneKind)> = (0..designs.len()).flat_map(|d| t.scenes.iter().map(move |&k| (d, k))).collect();
     let ramps: Vec<Ramp> = jobs
@@ -179,60 +189,88 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
             }
         })
         .collect();
-    let snapshot_time_s = t0.elapsed().as_secs_f64();
-    // the nodal part of every loaded state, in the basis frame
+    if ramps.is_empty() {
+        return Err(anyhow!("no training states: every training ramp failed"));
+    }
+    Ok(ramps)
+}
+
+/// The bases (POD of the ramps' states: displacement, and pressure when `t.pressure_modes`) of
+/// training ramps, without a sample.
+pub fn bases(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp]) -> Result<Basis> {
     let snaps: Vec<Vec<f64>> = ramps.iter().flat_map(|r| r.frame_states.iter().cloned()).collect();
     if snaps.is_empty() {
         return Err(anyhow!("no training states: every training ramp failed"));
     }
-    let t1 = Instant::now();
     let mut basis = Basis::pod(&snaps, t.truncation)?;
     basis.frame = t.frame;
-    basis.reference = reference;
+    basis.reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
     if let Some(tr) = t.pressure_modes {
         let ps: Vec<Vec<f64>> = ramps.iter().flat_map(|r| r.pressure_states.iter().cloned()).collect();
         let np = opts.formulation.pressure.dim().max(1);
-        let pb = twistopt_solver::rom::PressureBasis::pod(&ps, np, tr)?;
-        log(&format!("  pressure POD: {} snapshots of {} coefficients → {} modes", ps.len(), ps[0].len(), pb.kp));
-        basis.pressure = Some(pb);
+        basis.pressure = Some(twistopt_solver::rom::PressureBasis::pod(&ps, np, tr)?);
     }
+    Ok(basis)
+}
+
+/// The ECSW sample of a basis on training ramps (each state on its own design's geometry);
+/// `ecsw.max_elements == 0`: every element at weight 1.
+pub fn fit_sample(opts: &SceneOptions, basis: &Basis, ramps: &[Ramp], ecsw: &EcswOptions) -> Result<twistopt_solver::rom::EcswFit> {
+    let mut full = opts.clone();
+    full.rom = None;
+    let first = ramps.first().ok_or_else(|| anyhow!("no training ramps"))?;
+    if ecsw.max_elements == 0 {
+        let geom = ActuatorGeometry::new(&first.design, RangePolicy::TableI)?;
+        let elements = SceneModel::build(&geom, &full, first.kind)?.model.mesh.n_elements();
+        return Ok(twistopt_solver::rom::EcswFit { sample: twistopt_solver::rom::Sample::all(elements), residual: 0.0, rows: 0 });
+    }
+    let mut acc = twistopt_solver::rom::EcswAccumulator::new(ecsw.tangent_directions);
+    for r in ramps {
+        let geom = ActuatorGeometry::new(&r.design, RangePolicy::TableI)?;
+        let sm = SceneModel::build(&geom, &full, r.kind)?;
+        let snaps: Vec<Snapshot> = r.states.iter().filter(|s| s.0 != 0.0).map(|s| Snapshot { model: &sm.model, q: s.1.clone(), presc: s.2.clone() }).collect();
+        acc.add(basis, &snaps)?;
+    }
+    Ok(acc.fit(ecsw))
+}
+
+/// A reduced model of training ramps: [`bases`], then [`fit_sample`].
+pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(impl Fn(&str) + Sync)) -> Result<(Rom, TrainReport)> {
+    let t1 = Instant::now();
+    let basis = bases(opts, t, ramps)?;
     let pod_time_s = t1.elapsed().as_secs_f64();
-    log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snaps.len(), basis.n, basis.k, basis.frame));
-    // ECSW over the same states, design by design (each on its own geometry); max_elements = 0:
-    // no hyper-reduction (every element at weight 1)
+    let snapshots: usize = ramps.iter().map(|r| r.frame_states.len()).sum();
+    log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snapshots, basis.n, basis.k, basis.frame));
+    if let Some(pb) = &basis.pressure {
+        log(&format!("  pressure POD: {} snapshots of {} coefficients → {} modes", snapshots, pb.psi.len() / pb.kp.max(1), pb.kp));
+    }
     let t2 = Instant::now();
-    let mut acc = twistopt_solver::rom::EcswAccumulator::new(t.ecsw.tangent_directions);
-    let mut elements = 0;
-    let fit = if t.ecsw.max_elements == 0 {
-        let geom = ActuatorGeometry::new(&designs[0], RangePolicy::TableI)?;
+    let fit = fit_sample(opts, &basis, ramps, &t.ecsw)?;
+    let ecsw_time_s = t2.elapsed().as_secs_f64();
+    let elements = fit.sample.elements.len();
+    let n_elements = {
+        let geom = ActuatorGeometry::new(&ramps[0].design, RangePolicy::TableI)?;
         let mut full = opts.clone();
         full.rom = None;
-        elements = SceneModel::build(&geom, &full, t.scenes[0])?.model.mesh.n_elements();
-        twistopt_solver::rom::EcswFit { sample: twistopt_solver::rom::Sample::all(elements), residual: 0.0, rows: 0 }
-    } else {
-        for r in &ramps {
-            let geom = ActuatorGeometry::new(&r.design, RangePolicy::TableI)?;
-            let mut full = opts.clone();
-            full.rom = None;
-            let sm = SceneModel::build(&geom, &full, r.kind)?;
-            elements = sm.model.mesh.n_elements();
-            let snaps: Vec<Snapshot> = r.states.iter().filter(|s| s.0 != 0.0).map(|s| Snapshot { model: &sm.model, q: s.1.clone(), presc: s.2.clone() }).collect();
-            acc.add(&basis, &snaps)?;
-        }
-        acc.fit(&t.ecsw)
+        SceneModel::build(&geom, &full, ramps[0].kind)?.model.mesh.n_elements()
     };
-    let ecsw_time_s = t2.elapsed().as_secs_f64();
-    log(&format!("  ECSW: {} of {} elements, relative residual {:.2e} (τ = {})", fit.sample.elements.len(), elements, fit.residual, t.ecsw.tau));
+    log(&format!("  ECSW: {} of {} elements, relative residual {:.2e} (τ = {})", elements, n_elements, fit.residual, t.ecsw.tau));
+    let mut designs: Vec<Design> = Vec::new();
+    for r in ramps {
+        if !designs.iter().any(|d| d.values == r.design.values) {
+            designs.push(r.design.clone());
+        }
+    }
     let report = TrainReport {
-        training_designs: designs.to_vec(),
-        snapshots: snaps.len(),
+        training_designs: designs,
+        snapshots,
         modes: basis.k,
         singular_values: basis.singular_values.clone(),
         pressure_singular_values: basis.pressure.as_ref().map(|p| p.singular_values.clone()).unwrap_or_default(),
         sample_elements: fit.sample.elements.len(),
-        elements,
+        elements: n_elements,
         ecsw_residual: fit.residual,
-        snapshot_time_s,
+        snapshot_time_s: 0.0,
         pod_time_s,
         ecsw_time_s,
         full_newton_iterations: ramps.iter().map(|r| r.newton_iterations).sum(),
@@ -243,4 +281,290 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
 /// "r=…, l=…, alpha=…" of a design.
 pub fn label(d: &Design) -> String {
     d.values.iter().map(|(k, v)| format!("{k}={v:.4}")).collect::<Vec<_>>().join(", ")
+}
+
+// ---------------------------------------------------------------------------------------------
+// ROM directories: manifest.json + basis.bin, and the training's ramp cache
+
+/// The format version of a ROM directory (manifest.json + basis.bin).
+pub const FORMAT_VERSION: u32 = 1;
+
+/// What a ROM directory's manifest.json holds: what the model was trained for (mesh, element,
+/// material, scene options, design box) and how (options, designs, costs), its sizes and its
+/// sample, and the errors measured at training.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Manifest {
+    pub format_version: u32,
+    pub mesh: crate::meshing::MeshSpec,
+    pub formulation: twistopt_solver::element::Formulation,
+    pub material: twistopt_solver::material::Material,
+    pub sector: bool,
+    pub cap_load: bool,
+    /// the design box the training designs cover (a design outside it is refused)
+    pub design_box: Vec<crate::geometry::ParamSpec>,
+    pub frame: Frame,
+    /// nodal unknowns, displacement modes, pressure coefficients per element, pressure modes
+    pub n: usize,
+    pub k: usize,
+    pub np: usize,
+    pub kp: usize,
+    pub reference_nodes: usize,
+    pub sample: twistopt_solver::rom::Sample,
+    pub options: TrainOptions,
+    pub report: TrainReport,
+    /// the training's total CPU time (process, s) and wall time
+    pub train_cpu_s: f64,
+    pub train_wall_s: f64,
+    /// full vs reduced on held-out designs, when measured at training (`--validate N`)
+    #[serde(default)]
+    pub validation: Option<serde_json::Value>,
+}
+
+fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {
+    for x in v {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+}
+
+fn take_f64s(bytes: &[u8], at: &mut usize, n: usize) -> Result<Vec<f64>> {
+    let end = *at + 8 * n;
+    if end > bytes.len() {
+        return Err(anyhow!("basis.bin is truncated (needs {} more bytes)", end - bytes.len()));
+    }
+    let v = bytes[*at..end].chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect();
+    *at = end;
+    Ok(v)
+}
+
+/// Write a trained model to DIR (manifest.json + basis.bin: V, then Ψ, then the reference
+/// nodes, little-endian f64, row-major), each file atomically.
+pub fn save(dir: &std::path::Path, rom: &Rom, manifest: &Manifest) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| anyhow!("cannot create {}: {e}", dir.display()))?;
+    let mut bin = Vec::new();
+    put_f64s(&mut bin, &rom.basis.v);
+    if let Some(p) = &rom.basis.pressure {
+        put_f64s(&mut bin, &p.psi);
+    }
+    put_f64s(&mut bin, &rom.basis.reference.iter().flatten().copied().collect::<Vec<_>>());
+    let tmp = dir.join("basis.bin.tmp");
+    std::fs::write(&tmp, &bin).map_err(|e| anyhow!("cannot write {}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, dir.join("basis.bin"))?;
+    let mut m = manifest.clone();
+    m.report.singular_values = rom.basis.singular_values.clone();
+    crate::sweep::write_atomic(&dir.join("manifest.json"), &serde_json::to_string_pretty(&m)?)?;
+    Ok(())
+}
+
+/// Read a ROM directory, checking that it was trained for these scene options (mesh, element,
+/// material, sector, cap load); a mismatch is a clear error.
+pub fn load(dir: &std::path::Path, opts: &SceneOptions) -> Result<(Rom, Manifest)> {
+    let mpath = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&mpath).map_err(|e| anyhow!("cannot read the reduced model {}: {e} (train one with `twistopt rom train`)", mpath.display()))?;
+    let m: Manifest = serde_json::from_str(&text).map_err(|e| anyhow!("{} is not a twistopt ROM manifest: {e}", mpath.display()))?;
+    if m.format_version != FORMAT_VERSION {
+        return Err(anyhow!("{}: ROM format version {} (this twistopt reads version {FORMAT_VERSION}); retrain it", mpath.display(), m.format_version));
+    }
+    let mut why = Vec::new();
+    if m.mesh != opts.mesh {
+        why.push(format!("mesh {:?} (the problem's: {:?})", m.mesh, opts.mesh));
+    }
+    if m.formulation != opts.formulation {
+        why.push(format!("element {:?} (the problem's: {:?})", m.formulation, opts.formulation));
+    }
+    if m.material != opts.material {
+        why.push(format!("material {:?} (the problem's: {:?})", m.material, opts.material));
+    }
+    if m.sector != opts.sector || m.cap_load != opts.cap_load {
+        why.push(format!("sector = {}, cap_load = {} (the problem's: {}, {})", m.sector, m.cap_load, opts.sector, opts.cap_load));
+    }
+    if !why.is_empty() {
+        return Err(anyhow!("the reduced model in {} was trained for another model: {}", dir.display(), why.join("; ")));
+    }
+    let bpath = dir.join("basis.bin");
+    let bytes = std::fs::read(&bpath).map_err(|e| anyhow!("cannot read {}: {e}", bpath.display()))?;
+    let need = 8 * (m.n * m.k + m.n_pressure_rows() * m.kp + 3 * m.reference_nodes);
+    if bytes.len() != need {
+        return Err(anyhow!("{} has {} bytes, the manifest describes {need}", bpath.display(), bytes.len()));
+    }
+    let mut at = 0;
+    let v = take_f64s(&bytes, &mut at, m.n * m.k)?;
+    let pressure = if m.kp > 0 {
+        let psi = take_f64s(&bytes, &mut at, m.n_pressure_rows() * m.kp)?;
+        Some(twistopt_solver::rom::PressureBasis { np: m.np, kp: m.kp, psi, singular_values: m.report.pressure_singular_values.clone() })
+    } else {
+        None
+    };
+    let refs = take_f64s(&bytes, &mut at, 3 * m.reference_nodes)?;
+    let reference = refs.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let basis = Basis { frame: m.frame, n: m.n, k: m.k, reference, v, singular_values: m.report.singular_values.clone(), pressure };
+    Ok((Rom { basis, sample: m.sample.clone() }, m))
+}
+
+impl Manifest {
+    fn n_pressure_rows(&self) -> usize {
+        if self.kp > 0 {
+            self.report.elements * self.np
+        } else {
+            0
+        }
+    }
+}
+
+/// One cached training ramp: DIR/ramps/<design>-<scene>.bin (a JSON header line, then the
+/// states' pressure, q and prescribed values as little-endian f64).
+fn ramp_path(dir: &std::path::Path, d: usize, kind: SceneKind) -> std::path::PathBuf {
+    dir.join("ramps").join(format!("{d:04}-{}.bin", kind.name()))
+}
+
+fn write_ramp(path: &std::path::Path, r: &Ramp) -> Result<()> {
+    let header = serde_json::json!({ "design": r.design, "kind": r.kind.name(), "newton_iterations": r.newton_iterations,
+        "states": r.states.iter().map(|s| (s.1.len(), s.2.len())).collect::<Vec<_>>() });
+    let mut bytes = serde_json::to_vec(&header)?;
+    bytes.push(b'\n');
+    for s in &r.states {
+        put_f64s(&mut bytes, &[s.0]);
+        put_f64s(&mut bytes, &s.1);
+        put_f64s(&mut bytes, &s.2);
+    }
+    if let Some(p) = path.parent() {
+        std::fs::create_dir_all(p)?;
+    }
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, &bytes)?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}
+
+/// A cached ramp (None: missing or unreadable, to be recomputed), with its frame and pressure
+/// snapshots recomputed on its design's model.
+fn read_ramp(path: &std::path::Path, opts: &SceneOptions, kind: SceneKind, frame: Frame, reference: &[[f64; 3]]) -> Option<Ramp> {
+    let bytes = std::fs::read(path).ok()?;
+    let nl = bytes.iter().position(|&b| b == b'\n')?;
+    let h: serde_json::Value = serde_json::from_slice(&bytes[..nl]).ok()?;
+    let design: Design = serde_json::from_value(h["design"].clone()).ok()?;
+    let sizes: Vec<(usize, usize)> = serde_json::from_value(h["states"].clone()).ok()?;
+    let mut at = nl + 1;
+    let mut states = Vec::new();
+    for (nq, npr) in sizes {
+        let p = take_f64s(&bytes, &mut at, 1).ok()?[0];
+        let q = take_f64s(&bytes, &mut at, nq).ok()?;
+        let pr = take_f64s(&bytes, &mut at, npr).ok()?;
+        states.push((p, q, pr));
+    }
+    if at != bytes.len() {
+        return None;
+    }
+    let geom = ActuatorGeometry::new(&design, RangePolicy::TableI).ok()?;
+    let mut full = opts.clone();
+    full.rom = None;
+    let sm = SceneModel::build(&geom, &full, kind).ok()?;
+    let frame_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::to_frame(&sm.model, frame, reference, &s.1)).collect::<Result<_, _>>().ok()?;
+    let pressure_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::pressure_snapshot(&sm.model, &s.1, &s.2)).collect::<Result<_, _>>().ok()?;
+    Some(Ramp { design, kind, states, frame_states, pressure_states, newton_iterations: h["newton_iterations"].as_u64().unwrap_or(0) as usize })
+}
+
+/// [`training_ramps`] with a cache in `dir`/ramps: a ramp already there is read instead of
+/// recomputed (an interrupted training resumes), a new one is written as soon as it is done.
+/// `progress` is called once per ramp (cached or computed).
+pub fn training_ramps_cached(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], dir: &std::path::Path, progress: &(impl Fn(&str) + Sync)) -> Result<Vec<Ramp>> {
+    let reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
+    let jobs: Vec<(usize, SceneKind)> = (0..designs.len()).flat_map(|d| t.scenes.iter().map(move |&k| (d, k))).collect();
+    let ramps: Vec<Ramp> = jobs
+        .par_iter()
+        .filter_map(|&(d, k)| {
+            let path = ramp_path(dir, d, k);
+            if let Some(r) = read_ramp(&path, opts, k, t.frame, &reference).filter(|r| r.design.values == designs[d].values) {
+                progress(&format!("design {d} {}: cached", k.name()));
+                return Some(r);
+            }
+            match full_ramp(&designs[d], opts, k, t.p_max_kpa, t.frame, &reference) {
+                Ok(r) => {
+                    if let Err(e) = write_ramp(&path, &r) {
+                        progress(&format!("warning: cannot cache {}: {e}", path.display()));
+                    }
+                    progress(&format!("design {d} {}: {} states, {} Newton iterations", k.name(), r.states.len(), r.newton_iterations));
+                    Some(r)
+                }
+                Err(e) => {
+                    progress(&format!("design {d} {}: skipped ({e})", k.name()));
+                    None
+                }
+            }
+        })
+        .collect();
+    if ramps.is_empty() {
+        return Err(anyhow!("no training states: every training ramp failed"));
+    }
+    Ok(ramps)
+}
+
+/// Ω by the letter's rule from a free and a blocked ramp to failure: both at the lower of the
+/// two end pressures (θ and τ interpolated there). Returns (Ω J/m³, that pressure kPa).
+pub fn omega_of(free: &crate::scene::SceneResult, blocked: &crate::scene::SceneResult) -> (f64, f64) {
+    let pf = free.steps.last().map(|s| s.p_kpa).unwrap_or(0.0);
+    let pb = blocked.steps.last().map(|s| s.p_kpa).unwrap_or(0.0);
+    let pc = pf.min(pb);
+    let th = crate::evaluate::interpolate(&free.steps, pc, |s| s.theta_deg).unwrap_or(0.0);
+    let tau = crate::evaluate::interpolate(&blocked.steps, pc, |s| s.tau_nm).unwrap_or(0.0);
+    (crate::scene::energy_density(th.abs(), tau.abs()), pc)
+}
+
+/// Full vs reduced model, free + blocked ramped to failure, on seeded random designs of the
+/// Table-I box: per design the end pressures, Ω and CPU s of both; and the error summary.
+pub fn validate(opts: &SceneOptions, rom: std::sync::Arc<Rom>, count: usize, seed: u64, p_max_kpa: f64, progress: &(impl Fn(&str) + Sync)) -> Result<serde_json::Value> {
+    use crate::scene::run_pressure;
+    let designs = random_designs(count, seed);
+    let mut ro = opts.clone();
+    ro.rom = Some(rom);
+    let mut full = opts.clone();
+    full.rom = None;
+    // one design at a time, so that the process CPU time is the design's (the models assemble in
+    // parallel themselves)
+    let rows: Vec<serde_json::Value> = designs
+        .iter()
+        .map(|d| {
+            let g = ActuatorGeometry::new(d, RangePolicy::TableI).map_err(|e| anyhow!("{e}"))?;
+            let run = |o: &SceneOptions| -> Result<(crate::scene::SceneResult, crate::scene::SceneResult, f64)> {
+                let c0 = crate::evaluate::process_cpu_time_s();
+                let f = run_pressure(&g, o, SceneKind::Free, &[p_max_kpa])?;
+                let b = run_pressure(&g, o, SceneKind::Blocked, &[p_max_kpa])?;
+                Ok((f, b, crate::evaluate::process_cpu_time_s() - c0))
+            };
+            let (ff, fb, cf) = run(&full)?;
+            let (rf, rb, cr) = run(&ro)?;
+            let end = |r: &crate::scene::SceneResult| r.steps.last().map(|s| s.p_kpa).unwrap_or(0.0);
+            let (of, _) = omega_of(&ff, &fb);
+            let (or, _) = omega_of(&rf, &rb);
+            progress(&format!("validation {}: Ω full {of:.3} reduced {or:.3}", label(d)));
+            Ok(serde_json::json!({
+                "design": d, "omega_full": of, "omega_rom": or,
+                "p_end_free_full": end(&ff), "p_end_free_rom": end(&rf), "p_end_blocked_full": end(&fb), "p_end_blocked_rom": end(&rb),
+                "status_full": [ff.status.to_string(), fb.status.to_string()], "status_rom": [rf.status.to_string(), rb.status.to_string()],
+                "cpu_s_full": cf, "cpu_s_rom": cr,
+            }))
+        })
+        .collect::<Result<_>>()?;
+    let rel = |a: f64, b: f64| if b != 0.0 { ((a - b) / b).abs() } else { (a - b).abs() };
+    let mut e_om: Vec<f64> = rows.iter().map(|r| rel(r["omega_rom"].as_f64().unwrap_or(0.0), r["omega_full"].as_f64().unwrap_or(0.0))).collect();
+    let mut e_p: Vec<f64> = rows
+        .iter()
+        .flat_map(|r| {
+            [
+                rel(r["p_end_free_rom"].as_f64().unwrap_or(0.0), r["p_end_free_full"].as_f64().unwrap_or(0.0)),
+                rel(r["p_end_blocked_rom"].as_f64().unwrap_or(0.0), r["p_end_blocked_full"].as_f64().unwrap_or(0.0)),
+            ]
+        })
+        .collect();
+    let q = |v: &mut Vec<f64>, f: f64| -> f64 {
+        v.sort_by(f64::total_cmp);
+        v.get(((v.len().max(1) - 1) as f64 * f).round() as usize).copied().unwrap_or(f64::NAN)
+    };
+    let cpu = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(0.0)).sum::<f64>() / rows.len().max(1) as f64;
+    Ok(serde_json::json!({
+        "designs": count, "seed": seed,
+        "omega_rel_error": { "median": q(&mut e_om, 0.5), "p95": q(&mut e_om, 0.95), "max": q(&mut e_om, 1.0) },
+        "p_end_rel_error": { "median": q(&mut e_p, 0.5), "p95": q(&mut e_p, 0.95), "max": q(&mut e_p, 1.0) },
+        "cpu_s_per_design_full": cpu("cpu_s_full"), "cpu_s_per_design_rom": cpu("cpu_s_rom"),
+        "rows": rows,
+    }))
 }

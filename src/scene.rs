@@ -110,6 +110,8 @@ pub struct SceneOptions {
     /// Solve with this reduced-order model instead of the full one (`rom` fidelity): path states
     /// are then its reduced coordinates.
     pub rom: Option<std::sync::Arc<twistopt_solver::rom::Rom>>,
+    /// the design box the reduced model was trained on: a design outside it is refused
+    pub rom_box: Vec<crate::geometry::ParamSpec>,
 }
 
 impl SceneOptions {
@@ -124,6 +126,7 @@ impl SceneOptions {
             keep_fields: false,
             cap_load: true,
             rom: None,
+            rom_box: Vec::new(),
         }
     }
 }
@@ -137,6 +140,8 @@ pub enum SceneError {
     Model(#[from] ModelError),
     #[error("the unloaded model is not solvable: {0}")]
     Initial(String),
+    #[error("{0}")]
+    OutsideRom(String),
 }
 
 /// The FE model of one scene on one design.
@@ -297,6 +302,20 @@ impl SceneFields {
 
 impl SceneModel {
     pub fn build(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind) -> Result<SceneModel, SceneError> {
+        if opts.rom.is_some() {
+            let out: Vec<String> = opts
+                .rom_box
+                .iter()
+                .filter_map(|p| {
+                    let v = geom.design.values.get(&p.name).copied()?;
+                    let tol = 1e-9 * (p.max - p.min).abs();
+                    (v < p.min - tol || v > p.max + tol).then(|| format!("{} = {v} outside [{}, {}]", p.name, p.min, p.max))
+                })
+                .collect();
+            if !out.is_empty() {
+                return Err(SceneError::OutsideRom(format!("the design is outside the reduced model's training box ({}); use the full model", out.join(", "))));
+            }
+        }
         let spec = opts.mesh.with_sector(opts.sector).with_kind(opts.formulation.kind);
         let am = build_mesh(geom, &spec)?;
         let mesh = am.mesh.clone();

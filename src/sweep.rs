@@ -410,7 +410,19 @@ impl SweepConfig {
     /// Mesh size and element kind.
     pub fn fidelity(&self) -> Result<String> {
         let v = self.problem.validate()?;
-        Ok(format!("{} {:?}", v.mesh.size_string(), v.mesh.kind))
+        Ok(match (&v.rom, &self.problem.fidelity.rom) {
+            (Some((rom, _)), Some(dir)) => {
+                format!(
+                    "{} {:?} rom:{dir} ({} modes, {} pressure modes, {} elements)",
+                    v.mesh.size_string(),
+                    v.mesh.kind,
+                    rom.basis.k,
+                    rom.basis.pressure.as_ref().map_or(0, |p| p.kp),
+                    rom.sample.elements.len()
+                )
+            }
+            _ => format!("{} {:?}", v.mesh.size_string(), v.mesh.kind),
+        })
     }
 
     pub fn manifest(&self) -> Result<Manifest> {

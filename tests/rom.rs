@@ -202,3 +202,107 @@ fn reduced_pressure_space_is_consistent() {
         }
     }
 }
+
+/// `twistopt rom train` end to end on the coarse mesh: the model directory (manifest + basis),
+/// a resumed training that reads its cached ramps, an evaluation and a sweep at ROM fidelity
+/// (results say so), and the refusals (another mesh; gradient, which needs the reduced adjoint).
+#[test]
+fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
+    use std::process::Command;
+    let bin = || Command::new(env!("CARGO_BIN_EXE_twistopt"));
+    let dir = std::env::temp_dir().join(format!("twistopt-rom-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let romdir = dir.join("rom");
+    let train = || {
+        bin()
+            .args(["rom", "train", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "8", "--modes", "24", "--pressure-modes", "5", "--out"])
+            .arg(&romdir)
+            .output()
+            .unwrap()
+    };
+    let out = train();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(romdir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["format_version"], 1);
+    assert_eq!(m["k"], 24);
+    assert_eq!(m["kp"], 5);
+    assert_eq!(m["report"]["training_designs"].as_array().unwrap().len(), 8);
+    assert!(m["train_cpu_s"].as_f64().unwrap() > 0.0);
+    let n = m["n"].as_u64().unwrap() as usize;
+    let rows = m["report"]["elements"].as_u64().unwrap() as usize * m["np"].as_u64().unwrap() as usize;
+    assert_eq!(std::fs::metadata(romdir.join("basis.bin")).unwrap().len() as usize, 8 * (n * 24 + rows * 5 + 3 * m["reference_nodes"].as_u64().unwrap() as usize));
+    // re-running reads the cached ramps (16 of them) and writes the same basis
+    let basis = std::fs::read(romdir.join("basis.bin")).unwrap();
+    let out = train();
+    assert!(out.status.success());
+    assert_eq!(String::from_utf8_lossy(&out.stderr).matches(": cached").count(), 16, "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(std::fs::read(romdir.join("basis.bin")).unwrap(), basis);
+    // evaluate at ROM fidelity (a training design: the box's corner r = 5√3, l = 20, α = 360°)
+    let rom_set = format!("fidelity.rom={}", toml::Value::String(romdir.display().to_string()));
+    let ev = |extra: &[&str], out_dir: &str| {
+        bin()
+            .args([
+                "evaluate",
+                "problems/energy-density.toml",
+                "--set",
+                "fidelity.preset=\"coarse\"",
+                "--set",
+                &rom_set,
+                "--set",
+                "design.r_mm=8.660254037844386",
+                "--set",
+                "design.l_mm=20",
+                "--set",
+                "design.alpha_deg=360",
+            ])
+            .args(extra)
+            .arg("--out")
+            .arg(dir.join(out_dir))
+            .output()
+            .unwrap()
+    };
+    let out = ev(&[], "ev");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("ev/result.json")).unwrap()).unwrap();
+    assert_eq!(r["fidelity"]["model"], "reduced", "{}", r["fidelity"]);
+    assert_eq!(r["fidelity"]["modes"], 24);
+    let om = r["omega_J_m3"].as_f64().unwrap();
+    assert!(om.is_finite() && om > 0.0, "{om}");
+    // the same design on the full model: a training design is reproduced closely
+    let full = bin()
+        .args([
+            "evaluate",
+            "problems/energy-density.toml",
+            "--set",
+            "fidelity.preset=\"coarse\"",
+            "--set",
+            "design.r_mm=8.660254037844386",
+            "--set",
+            "design.l_mm=20",
+            "--set",
+            "design.alpha_deg=360",
+            "--out",
+        ])
+        .arg(dir.join("full"))
+        .output()
+        .unwrap();
+    assert!(full.status.success());
+    let rf: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("full/result.json")).unwrap()).unwrap();
+    assert_eq!(rf["fidelity"]["model"], "full");
+    let of = rf["omega_J_m3"].as_f64().unwrap();
+    assert!((om - of).abs() <= 0.05 * of, "Ω reduced {om} vs full {of}");
+    // refusals: another mesh, and gradient (no reduced adjoint yet)
+    let out = ev(&["--set", "fidelity.preset=\"default\""], "ev2");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("trained for another model"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = bin().args(["gradient", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--set", &rom_set, "--out"]).arg(dir.join("gr")).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("adjoint"), "{}", String::from_utf8_lossy(&out.stderr));
+    // a sweep at ROM fidelity records it in its manifest
+    let out =
+        bin().args(["sweep", "problems/sweep-example.toml", "--set", "load.p_max_kPa=80", "--fidelity"]).arg(format!("rom:{}", romdir.display())).arg("--out").arg(dir.join("sw")).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let sm = std::fs::read_to_string(dir.join("sw/summary.json")).unwrap();
+    assert!(sm.contains("rom:"), "{sm}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

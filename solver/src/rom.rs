@@ -639,10 +639,23 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
     let u = s.model.dofs.expand(&s.model.mesh.nodes, &q, &s.presc, &kin);
     let nb = s.model.dofs.bodies.len();
     let m = red.dim();
-    let nf = basis.k + 6 * nb;
+    let rule = s.model.form.rule();
+    // a reduced pressure space: the elements' forces under the reduced pressure (all elements),
+    // and their dilatation-change moments on the pressure modes as a block of rows of their own
+    let all = Sample::all(ne);
+    let mixed = basis.pressure.as_ref().map(|pb| Mixed::new(s.model, pb, &all, &rule).map(|mx| (pb, mx))).transpose()?;
+    let pressure = match &mixed {
+        Some((pb, mx)) => {
+            let (mut energy, mut min_det) = (0.0, f64::INFINITY);
+            Some(reduced_pressure(s.model, &rule, &all, mx, pb, &u, &mut energy, &mut min_det)?.0)
+        }
+        None => None,
+    };
+    let kp = mixed.as_ref().map_or(0, |(pb, _)| pb.kp);
+    let nforce = basis.k + 6 * nb;
+    let nf = nforce + kp;
     let rows = nf + tangent_dirs * m;
     let mut g = Mat::<f64>::zeros(rows, ne);
-    let rule = s.model.form.rule();
     let mut scratch = Vec::new();
     let mut jac = Vec::new();
     let mut bf = vec![0.0; 6 * nb];
@@ -668,12 +681,25 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
         let xe: Vec<[f64; 3]> = conn.iter().map(|&n| s.model.mesh.nodes[n]).collect();
         let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
         let mut f = vec![0.0; nd];
+        let given = pressure.as_ref().map(|p| &p[e][..]);
         if tangent_dirs > 0 {
-            element::tangent_mixed(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, None, &mut f, &mut ke)
+            element::tangent_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, None, given, &mut f, &mut ke, None)
         } else {
-            element::residual(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, &mut f)
+            element::residual_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, given, &mut f)
         }
         .map_err(|err| crate::model::relabel(err, e))?;
+        if let Some((pb, _)) = &mixed {
+            let zero = vec![[0.0; 3]; xe.len()];
+            let b1 = element::dilatation_moments(&s.model.form, &rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?.0;
+            let b0 = element::dilatation_moments(&s.model.form, &rule, &xe, &zero).map_err(|err| crate::model::relabel(err, e))?.0;
+            let pe = pb.block(e);
+            for r in 0..pb.np {
+                let d = b1[r] - b0[r];
+                for j in 0..kp {
+                    g[(nforce + j, e)] += pe[r * kp + j] * d;
+                }
+            }
+        }
         red.jacobian(conn, &kin, &mut scratch, &mut jac);
         for (r, fr) in f.iter().enumerate() {
             if *fr != 0.0 {
@@ -699,8 +725,11 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
         }
     }
     let b: Vec<f64> = (0..rows).map(|i| (0..ne).map(|e| g[(i, e)]).sum()).collect();
-    // block scales: forces, then each tangent direction
-    let mut blocks = vec![(0, nf)];
+    // block scales: forces, dilatation moments, then each tangent direction
+    let mut blocks = vec![(0, nforce)];
+    if kp > 0 {
+        blocks.push((nforce, nf));
+    }
     blocks.extend((0..tangent_dirs).map(|t| (nf + t * m, nf + (t + 1) * m)));
     let mut bs = b.clone();
     for (lo, hi) in blocks {
@@ -827,6 +856,40 @@ struct Mixed {
     mass_inv: Mat<f64>,
 }
 
+impl Mixed {
+    fn new(model: &Model, pb: &PressureBasis, sample: &Sample, rule: &HexRule) -> Result<Mixed, RomError> {
+        let ne = model.mesh.n_elements();
+
+        let need = ne * pb.np;
+        if pb.psi.len() != need * pb.kp || pb.np != model.form.pressure.dim().max(1) {
+            return Err(RomError::PressureSize(pb.psi.len() / pb.kp.max(1), need, model.form.pressure.dim().max(1)));
+        }
+        let np = pb.np;
+        let kp = pb.kp;
+        let mut quad = Vec::with_capacity(sample.elements.len());
+        let mut mr = Mat::<f64>::zeros(kp, kp);
+        for (&e, &w) in sample.elements.iter().zip(&sample.weights) {
+            let xe = model.mesh.element_coords(e);
+            let qd = element::pressure_quadrature(&model.form, rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
+            let mut me = vec![0.0; np * np];
+            for (phi, wj) in &qd {
+                for r in 0..np {
+                    for c in 0..np {
+                        me[r * np + c] += phi[r] * phi[c] * wj;
+                    }
+                }
+            }
+            let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
+            let mm = faer::MatRef::from_row_major_slice(&me, np, np);
+            faer::linalg::matmul::matmul(mr.as_mut(), faer::Accum::Add, pe.transpose(), (mm * pe).as_ref(), w, faer::Par::Seq);
+            quad.push(qd);
+        }
+        let llt = Llt::new(mr.as_ref(), Side::Lower).map_err(|_| RomError::PressureMass)?;
+        let mass_inv = llt.solve(Mat::<f64>::identity(kp, kp));
+        Ok(Mixed { quad, mass_inv })
+    }
+}
+
 /// A factorised reduced tangent.
 pub enum DenseFactor {
     Llt(Llt<f64>),
@@ -855,38 +918,7 @@ impl<'a> RomPath<'a> {
             return Err(RomError::SampleElement(e, ne));
         }
         let rule = model.form.rule();
-        let mixed = match &basis.pressure {
-            None => None,
-            Some(pb) => {
-                let need = ne * pb.np;
-                if pb.psi.len() != need * pb.kp || pb.np != model.form.pressure.dim().max(1) {
-                    return Err(RomError::PressureSize(pb.psi.len() / pb.kp.max(1), need, model.form.pressure.dim().max(1)));
-                }
-                let np = pb.np;
-                let kp = pb.kp;
-                let mut quad = Vec::with_capacity(sample.elements.len());
-                let mut mr = Mat::<f64>::zeros(kp, kp);
-                for (&e, &w) in sample.elements.iter().zip(&sample.weights) {
-                    let xe = model.mesh.element_coords(e);
-                    let qd = element::pressure_quadrature(&model.form, &rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
-                    let mut me = vec![0.0; np * np];
-                    for (phi, wj) in &qd {
-                        for r in 0..np {
-                            for c in 0..np {
-                                me[r * np + c] += phi[r] * phi[c] * wj;
-                            }
-                        }
-                    }
-                    let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
-                    let mm = faer::MatRef::from_row_major_slice(&me, np, np);
-                    faer::linalg::matmul::matmul(mr.as_mut(), faer::Accum::Add, pe.transpose(), (mm * pe).as_ref(), w, faer::Par::Seq);
-                    quad.push(qd);
-                }
-                let llt = Llt::new(mr.as_ref(), Side::Lower).map_err(|_| RomError::PressureMass)?;
-                let mass_inv = llt.solve(Mat::<f64>::identity(kp, kp));
-                Some(Mixed { quad, mass_inv })
-            }
-        };
+        let mixed = basis.pressure.as_ref().map(|pb| Mixed::new(model, pb, sample, &rule)).transpose()?;
         Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed })
     }
 
@@ -917,7 +949,7 @@ impl<'a> RomPath<'a> {
         // a reduced pressure space: project J, then U'(θ), on it (the volumetric energy, the
         // element pressures, and the low-rank volumetric stiffness B_rᵀ M⁻¹ H M⁻¹ B_r)
         let pressure = match (&self.mixed, &self.red.basis.pressure) {
-            (Some(mx), Some(pb)) => Some(self.reduced_pressure(mx, pb, &u, &mut energy, &mut min_det)?),
+            (Some(mx), Some(pb)) => Some(reduced_pressure(model, &self.rule, self.sample, mx, pb, &u, &mut energy, &mut min_det)?),
             _ => None,
         };
         let kp = self.red.basis.pressure.as_ref().map_or(0, |p| p.kp);
@@ -1077,68 +1109,6 @@ impl<'a> RomPath<'a> {
         Ok((r, kz, RomState { q, u, kin, r_body, volume, dvol, energy }, scale, min_det))
     }
 
-    /// The projections on a reduced pressure space at displacement u: θ = Π_r J, then
-    /// p = Π_r U'(θ). Returns each sampled element's pressure coefficients and the reduced
-    /// H = Σ w Ψ_eᵀ (∫ φ φᵀ U''(θ)) Ψ_e; adds the volumetric energy.
-    fn reduced_pressure(&self, mx: &Mixed, pb: &PressureBasis, u: &[[f64; 3]], energy: &mut f64, min_det: &mut f64) -> Result<(Vec<Vec<f64>>, Mat<f64>), ElementError> {
-        let model = self.red.model;
-        let x0 = &model.mesh.nodes;
-        let (np, kp) = (pb.np, pb.kp);
-        let mut b = vec![0.0; kp];
-        for (&e, &w) in self.sample.elements.iter().zip(&self.sample.weights) {
-            let conn = model.mesh.element(e);
-            let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
-            let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
-            let (be, _, mj) = element::dilatation_moments(&model.form, &self.rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?;
-            *min_det = min_det.min(mj);
-            let pe = pb.block(e);
-            for r in 0..np {
-                for (bj, psi) in b.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
-                    *bj += w * psi * be[r];
-                }
-            }
-        }
-        let coef = |v: &[f64]| -> Vec<f64> { (0..kp).map(|i| (0..kp).map(|j| mx.mass_inv[(i, j)] * v[j]).sum()).collect() };
-        let c = coef(&b);
-        let mut rr = vec![0.0; kp];
-        let mut h = Mat::<f64>::zeros(kp, kp);
-        for (s_i, (&e, &w)) in self.sample.elements.iter().zip(&self.sample.weights).enumerate() {
-            let pe = pb.block(e);
-            let th: Vec<f64> = (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&c).map(|(a, b)| a * b).sum()).collect();
-            let mut re = vec![0.0; np];
-            let mut he = vec![0.0; np * np];
-            for (phi, wj) in &mx.quad[s_i] {
-                let t: f64 = (0..np).map(|r| th[r] * phi[r]).sum();
-                if !(t > 0.0) {
-                    return Err(ElementError::Inverted(e));
-                }
-                *min_det = min_det.min(t);
-                let [uv, up, upp] = model.material.u_vol(&model.params, t);
-                *energy += w * uv * wj;
-                for r in 0..np {
-                    re[r] += phi[r] * up * wj;
-                    for c2 in 0..np {
-                        he[r * np + c2] += phi[r] * phi[c2] * upp * wj;
-                    }
-                }
-            }
-            for r in 0..np {
-                for (ri, psi) in rr.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
-                    *ri += w * psi * re[r];
-                }
-            }
-            let pm = faer::MatRef::from_row_major_slice(pe, np, kp);
-            let hm = faer::MatRef::from_row_major_slice(&he, np, np);
-            faer::linalg::matmul::matmul(h.as_mut(), faer::Accum::Add, pm.transpose(), (hm * pm).as_ref(), w, faer::Par::Seq);
-        }
-        let pi = coef(&rr);
-        let pcs = self.sample.elements.iter().map(|&e| {
-            let pe = pb.block(e);
-            (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&pi).map(|(a, b)| a * b).sum()).collect()
-        });
-        Ok((pcs.collect(), h))
-    }
-
     /// The reduced load of a unit cavity pressure, ∂V/∂z less the caps' areas when they carry no
     /// pressure (as [`Model::unit_pressure_load`]).
     fn unit_pressure_load(&self, dvol: &[f64]) -> Vec<f64> {
@@ -1159,6 +1129,76 @@ impl<'a> RomPath<'a> {
         let bodies = st.kin.iter().map(|k| BodyState { c: k.c, psi: k.psi, r: k.r, dr: k.dr }).collect();
         State { x0: self.red.model.mesh.nodes.clone(), u: st.u.clone(), r_full: st.r_body.clone(), r: Vec::new(), volume: st.volume, gvol_full: Vec::new(), bodies }
     }
+}
+
+/// The projections on a reduced pressure space at displacement u: θ = Π_r J, then
+/// p = Π_r U'(θ). Returns each sampled element's pressure coefficients and the reduced
+/// H = Σ w Ψ_eᵀ (∫ φ φᵀ U''(θ)) Ψ_e; adds the volumetric energy.
+fn reduced_pressure(
+    model: &Model,
+    rule: &HexRule,
+    sample: &Sample,
+    mx: &Mixed,
+    pb: &PressureBasis,
+    u: &[[f64; 3]],
+    energy: &mut f64,
+    min_det: &mut f64,
+) -> Result<(Vec<Vec<f64>>, Mat<f64>), ElementError> {
+    let x0 = &model.mesh.nodes;
+    let (np, kp) = (pb.np, pb.kp);
+    let mut b = vec![0.0; kp];
+    for (&e, &w) in sample.elements.iter().zip(&sample.weights) {
+        let conn = model.mesh.element(e);
+        let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
+        let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
+        let (be, _, mj) = element::dilatation_moments(&model.form, rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?;
+        *min_det = min_det.min(mj);
+        let pe = pb.block(e);
+        for r in 0..np {
+            for (bj, psi) in b.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
+                *bj += w * psi * be[r];
+            }
+        }
+    }
+    let coef = |v: &[f64]| -> Vec<f64> { (0..kp).map(|i| (0..kp).map(|j| mx.mass_inv[(i, j)] * v[j]).sum()).collect() };
+    let c = coef(&b);
+    let mut rr = vec![0.0; kp];
+    let mut h = Mat::<f64>::zeros(kp, kp);
+    for (s_i, (&e, &w)) in sample.elements.iter().zip(&sample.weights).enumerate() {
+        let pe = pb.block(e);
+        let th: Vec<f64> = (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&c).map(|(a, b)| a * b).sum()).collect();
+        let mut re = vec![0.0; np];
+        let mut he = vec![0.0; np * np];
+        for (phi, wj) in &mx.quad[s_i] {
+            let t: f64 = (0..np).map(|r| th[r] * phi[r]).sum();
+            if !(t > 0.0) {
+                return Err(ElementError::Inverted(e));
+            }
+            *min_det = min_det.min(t);
+            let [uv, up, upp] = model.material.u_vol(&model.params, t);
+            *energy += w * uv * wj;
+            for r in 0..np {
+                re[r] += phi[r] * up * wj;
+                for c2 in 0..np {
+                    he[r * np + c2] += phi[r] * phi[c2] * upp * wj;
+                }
+            }
+        }
+        for r in 0..np {
+            for (ri, psi) in rr.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
+                *ri += w * psi * re[r];
+            }
+        }
+        let pm = faer::MatRef::from_row_major_slice(pe, np, kp);
+        let hm = faer::MatRef::from_row_major_slice(&he, np, np);
+        faer::linalg::matmul::matmul(h.as_mut(), faer::Accum::Add, pm.transpose(), (hm * pm).as_ref(), w, faer::Par::Seq);
+    }
+    let pi = coef(&rr);
+    let pcs = sample.elements.iter().map(|&e| {
+        let pe = pb.block(e);
+        (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&pi).map(|(a, b)| a * b).sum()).collect()
+    });
+    Ok((pcs.collect(), h))
 }
 
 /// Add w·f at the rigid bodies' nodal components of a node list.

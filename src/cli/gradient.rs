@@ -40,6 +40,9 @@ pub struct GradientArgs {
 pub fn run(args: &GradientArgs) -> Result<()> {
     let problem = Problem::load(&args.problem, &args.set)?;
     let v = problem.validate()?;
+    if v.rom.is_some() {
+        anyhow::bail!("fidelity.rom: `gradient` needs the reduced model's adjoint, which is not built yet; run it on the full model (drop fidelity.rom)");
+    }
     let p = match args.pressure {
         Some(p) => p,
         None => match &v.load {

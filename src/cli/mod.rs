@@ -10,6 +10,7 @@ pub mod export;
 pub mod geometry;
 pub mod gradient;
 pub mod optimise;
+pub mod rom;
 pub mod sweep;
 pub mod verify;
 
@@ -52,6 +53,8 @@ pub enum Command {
     /// [sweep] section), ramped to failure; parallel, resumable (re-run the same command),
     /// shardable (--shard I/N); writes results.jsonl/csv, summary.json and Fig.-5 maps.
     Sweep(sweep::SweepArgs),
+    /// Reduced-order models: `rom train` trains one over the Table-I box for a problem's mesh.
+    Rom(rom::RomArgs),
     /// Join the output directories of a sweep's shards.
     SweepMerge(sweep::SweepMergeArgs),
     /// Compare an optimiser's best design (DIR/best.json) with a sweep's best; write verify.json.
@@ -71,6 +74,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Gradient(args) => gradient::run(&args),
         Command::Optimise(args) => optimise::run(&args),
         Command::Sweep(args) => sweep::run(&args),
+        Command::Rom(args) => rom::run(&args),
         Command::SweepMerge(args) => sweep::run_merge(&args),
         Command::Verify(args) => verify::run(&args),
         Command::Export(args) => export::run(&args),

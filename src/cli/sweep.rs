@@ -18,7 +18,8 @@ pub struct SweepArgs {
     #[arg(long, value_name = "table1|every=K")]
     pub grid: Option<String>,
     /// Mesh fidelity: a preset (coarse, default, fine) or <Na>x<Nz>x<Nt> (Hex27); overrides
-    /// the problem's [fidelity].
+    /// the problem's [fidelity]. `rom:DIR`: the reduced model in DIR (`twistopt rom train`,
+    /// for the problem's mesh) instead of the full model.
     #[arg(long, value_name = "PRESET|NaxNzxNt")]
     pub fidelity: Option<String>,
     /// Run only shard I of N (0 <= I < N): the designs whose grid index i has i mod N = I.
@@ -53,7 +54,9 @@ pub fn config(args: &SweepArgs) -> Result<SweepConfig> {
     let mut sets = args.set.clone();
     if let Some(f) = &args.fidelity {
         let f = f.trim();
-        if f.chars().next().is_some_and(|c| c.is_ascii_digit()) {
+        if let Some(dir) = f.strip_prefix("rom:") {
+            sets.push(format!("fidelity.rom={}", toml::Value::String(dir.to_string())));
+        } else if f.chars().next().is_some_and(|c| c.is_ascii_digit()) {
             sets.push(format!("fidelity.mesh={f}"));
         } else {
             sets.push(format!("fidelity.preset={f}"));

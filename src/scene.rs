@@ -732,7 +732,7 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
         status: status.0,
         cause: status.1,
         steps,
-        dofs: sm.model.n_reduced(),
+        dofs: sm.state_dim(opts),
         elements: sm.model.mesh.n_elements(),
         newton_iterations: stats.newton_iterations,
         path: stats,

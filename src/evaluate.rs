@@ -342,6 +342,7 @@ fn scene_json(r: &SceneResult) -> Value {
         "elements": r.elements,
         "newton_iterations": r.newton_iterations,
         "wall_time_s": r.wall_time_s,
+        "rom_indicator": r.rom_indicator,
     })
 }
 
@@ -565,6 +566,7 @@ mod tests {
             wall_time_s: 0.0,
             fields: None,
             states: Vec::new(),
+            rom_indicator: None,
         }
     }
 

@@ -254,6 +254,19 @@ pub struct SceneResult {
     /// evaluations at a pressure between steps.
     #[serde(skip)]
     pub states: Vec<Vec<f64>>,
+    /// At `rom` fidelity: the reduced model's error indicator at the highest recorded pressure
+    /// ([`twistopt_solver::rom::RomPath::indicator`]: the full model's relative momentum residual
+    /// under the reduced pressure; one residual assembly). None on the full model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom_indicator: Option<f64>,
+}
+
+/// The reduced model's error indicator at a path state z (reduced coordinates) and pressure
+/// (None on the full model, or where it cannot be evaluated).
+pub fn rom_indicator(sm: &SceneModel, opts: &SceneOptions, z: &[f64], p_kpa: f64) -> Option<f64> {
+    let rom = opts.rom.as_ref()?;
+    let rp = rom.path(&sm.model, sm.loads(0.0, 0.0), sm.loads(p_kpa, 0.0), Vec::new()).ok()?;
+    rp.indicator(z, 1.0).ok().filter(|v| v.is_finite())
 }
 
 impl SceneResult {
@@ -271,6 +284,7 @@ impl SceneResult {
             wall_time_s: 0.0,
             fields: None,
             states: Vec::new(),
+            rom_indicator: None,
         }
     }
 }
@@ -727,7 +741,12 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
             .map(|(s, q)| sm.model.assemble(&sm.full_state(opts, q), &sm.loads(s.p_kpa, 0.0), false).map(|a| a.u).unwrap_or_else(|_| vec![[0.0; 3]; sm.model.mesh.nodes.len()]))
             .collect(),
     });
+    let rom_indicator = match (steps.last(), states.last()) {
+        (Some(s), Some(z)) if opts.rom.is_some() => rom_indicator(&sm, opts, z, s.p_kpa),
+        _ => None,
+    };
     Ok(SceneResult {
+        rom_indicator,
         scene: kind.name().to_string(),
         status: status.0,
         cause: status.1,

@@ -531,6 +531,9 @@ pub struct SceneSummary {
     #[serde(default)]
     pub path: twistopt_solver::continuation::PathStats,
     pub wall_time_s: f64,
+    /// at `rom` fidelity: the reduced model's error indicator (see `SceneResult::rom_indicator`)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom_indicator: Option<f64>,
 }
 
 /// The outputs of one mode (free + blocked, or pure-twist + pure-twist-blocked) of a design.
@@ -679,6 +682,7 @@ fn scene_summary(r: &SceneResult) -> SceneSummary {
         newton_iterations: r.newton_iterations,
         path: r.path.clone(),
         wall_time_s: r.wall_time_s,
+        rom_indicator: r.rom_indicator,
     }
 }
 
@@ -1273,6 +1277,7 @@ mod tests {
             wall_time_s: 0.0,
             fields: None,
             states: Vec::new(),
+            rom_indicator: None,
         }
     }
 

@@ -266,6 +266,10 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("ev/result.json")).unwrap()).unwrap();
     assert_eq!(r["fidelity"]["model"], "reduced", "{}", r["fidelity"]);
     assert_eq!(r["fidelity"]["modes"], 24);
+    for sc in ["free", "blocked"] {
+        let ind = r["scenes"][sc]["rom_indicator"].as_f64();
+        assert!(ind.is_some_and(|v| v.is_finite() && v > 0.0), "{sc}: rom_indicator {:?}", r["scenes"][sc]["rom_indicator"]);
+    }
     let om = r["omega_J_m3"].as_f64().unwrap();
     assert!(om.is_finite() && om > 0.0, "{om}");
     // the same design on the full model: a training design is reproduced closely
@@ -289,6 +293,7 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     assert!(full.status.success());
     let rf: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("full/result.json")).unwrap()).unwrap();
     assert_eq!(rf["fidelity"]["model"], "full");
+    assert!(rf["scenes"]["free"]["rom_indicator"].is_null());
     let of = rf["omega_J_m3"].as_f64().unwrap();
     assert!((om - of).abs() <= 0.05 * of, "Ω reduced {om} vs full {of}");
     // refusals: another mesh, and gradient (no reduced adjoint yet)

@@ -949,7 +949,7 @@ impl<'a> RomPath<'a> {
         // a reduced pressure space: project J, then U'(θ), on it (the volumetric energy, the
         // element pressures, and the low-rank volumetric stiffness B_rᵀ M⁻¹ H M⁻¹ B_r)
         let pressure = match (&self.mixed, &self.red.basis.pressure) {
-            (Some(mx), Some(pb)) => Some(reduced_pressure(model, &self.rule, self.sample, mx, pb, &u, &mut energy, &mut min_det)?),
+            (Some(mx), Some(pb)) => Some(reduced_pressure(model, &self.rule, self.sample, mx, pb, &u, &mut energy, &mut min_det).map(|(a, b, _)| (a, b))?),
             _ => None,
         };
         let kp = self.red.basis.pressure.as_ref().map_or(0, |p| p.kp);
@@ -1109,6 +1109,74 @@ impl<'a> RomPath<'a> {
         Ok((r, kz, RomState { q, u, kin, r_body, volume, dvol, energy }, scale, min_det))
     }
 
+    /// The error indicator of a reduced state: the full model's momentum residual at the lifted
+    /// displacement under the reduced model's own pressure field (every element, no
+    /// factorisation), on the nodal unknowns, relative to the element forces' scale
+    /// √Σ‖f_e‖². (Under each element's own condensed pressure instead, the residual is of the
+    /// order of the forces for any reduced state of a nearly incompressible material: the
+    /// reduced pressure space does not enforce the element-wise constraints, by design.)
+    pub fn indicator(&self, z: &[f64], lam: f64) -> Result<f64, ElementError> {
+        let model = self.red.model;
+        let x0 = &model.mesh.nodes;
+        let loads = self.loads(lam);
+        let q = self.red.lift(z);
+        let kin = model.dofs.body_kinematics(&q, &loads.presc);
+        let u = model.dofs.expand(x0, &q, &loads.presc, &kin);
+        let pi = match (&self.mixed, &self.red.basis.pressure) {
+            (Some(mx), Some(pb)) => {
+                let (mut en, mut md) = (0.0, f64::INFINITY);
+                Some(reduced_pressure(model, &self.rule, self.sample, mx, pb, &u, &mut en, &mut md)?.2)
+            }
+            _ => None,
+        };
+        let n = self.red.basis.n;
+        let mut r = vec![0.0; model.n_reduced()];
+        let mut scale = 0.0;
+        let mut scratch = Vec::new();
+        let nd = 3 * model.mesh.kind.nodes_per_element();
+        let mut f = vec![0.0; nd];
+        let mut scatter = |nodes: &[usize], f: &[f64], c: f64, r: &mut [f64]| {
+            for (a, &nn) in nodes.iter().enumerate() {
+                for comp in 0..3 {
+                    scratch.clear();
+                    model.dofs.row(x0, &kin, nn, comp, &mut scratch);
+                    for &(i, cf) in scratch.iter() {
+                        r[i as usize] += c * cf * f[3 * a + comp];
+                    }
+                }
+            }
+        };
+        for e in 0..model.mesh.n_elements() {
+            let conn = model.mesh.element(e);
+            let xe: Vec<[f64; 3]> = conn.iter().map(|&nn| x0[nn]).collect();
+            let ue: Vec<[f64; 3]> = conn.iter().map(|&nn| u[nn]).collect();
+            let given = match (&pi, &self.red.basis.pressure) {
+                (Some(pi), Some(pb)) => Some(element_pressure(pb, e, pi)),
+                _ => None,
+            };
+            element::residual_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, given.as_deref(), &mut f).map_err(|err| crate::model::relabel(err, e))?;
+            scale += f.iter().map(|x| x * x).sum::<f64>();
+            scatter(conn, &f, 1.0, &mut r);
+        }
+        if let Some(cav) = &model.cavity {
+            let p = loads.pressure;
+            let mut g = Vec::new();
+            for (nodes, is_face) in cav.face_nodes.iter().map(|v| (v.as_slice(), true)).chain(cav.edges.iter().map(|e| (e.0.as_slice(), false))) {
+                let xs: Vec<[f64; 3]> = nodes.iter().map(|&nn| [x0[nn][0] + u[nn][0], x0[nn][1] + u[nn][1], x0[nn][2] + u[nn][2]]).collect();
+                g.clear();
+                g.resize(3 * xs.len(), 0.0);
+                if is_face {
+                    surface::face_volume_grad(&cav.rule, &xs, &mut g);
+                } else {
+                    surface::edge_volume_grad(&xs, &mut g);
+                }
+                scatter(nodes, &g, -p, &mut r);
+            }
+        }
+        let rn = r[..n].iter().map(|x| x * x).sum::<f64>().sqrt();
+        Ok(rn / scale.sqrt().max(1e-300))
+    }
+
     /// The reduced load of a unit cavity pressure, ∂V/∂z less the caps' areas when they carry no
     /// pressure (as [`Model::unit_pressure_load`]).
     fn unit_pressure_load(&self, dvol: &[f64]) -> Vec<f64> {
@@ -1133,7 +1201,7 @@ impl<'a> RomPath<'a> {
 
 /// The projections on a reduced pressure space at displacement u: θ = Π_r J, then
 /// p = Π_r U'(θ). Returns each sampled element's pressure coefficients and the reduced
-/// H = Σ w Ψ_eᵀ (∫ φ φᵀ U''(θ)) Ψ_e; adds the volumetric energy.
+/// H = Σ w Ψ_eᵀ (∫ φ φᵀ U″(θ)) Ψ_e and the reduced pressure coordinates π; adds the volumetric energy.
 fn reduced_pressure(
     model: &Model,
     rule: &HexRule,
@@ -1143,7 +1211,7 @@ fn reduced_pressure(
     u: &[[f64; 3]],
     energy: &mut f64,
     min_det: &mut f64,
-) -> Result<(Vec<Vec<f64>>, Mat<f64>), ElementError> {
+) -> Result<(Vec<Vec<f64>>, Mat<f64>, Vec<f64>), ElementError> {
     let x0 = &model.mesh.nodes;
     let (np, kp) = (pb.np, pb.kp);
     let mut b = vec![0.0; kp];
@@ -1194,11 +1262,15 @@ fn reduced_pressure(
         faer::linalg::matmul::matmul(h.as_mut(), faer::Accum::Add, pm.transpose(), (hm * pm).as_ref(), w, faer::Par::Seq);
     }
     let pi = coef(&rr);
-    let pcs = sample.elements.iter().map(|&e| {
-        let pe = pb.block(e);
-        (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&pi).map(|(a, b)| a * b).sum()).collect()
-    });
-    Ok((pcs.collect(), h))
+    let pcs = sample.elements.iter().map(|&e| element_pressure(pb, e, &pi));
+    Ok((pcs.collect(), h, pi))
+}
+
+/// Element e's pressure coefficients Ψ_e π of reduced pressure coordinates π.
+fn element_pressure(pb: &PressureBasis, e: usize, pi: &[f64]) -> Vec<f64> {
+    let (np, kp) = (pb.np, pb.kp);
+    let pe = pb.block(e);
+    (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(pi).map(|(a, b)| a * b).sum()).collect()
 }
 
 /// Add w·f at the rigid bodies' nodal components of a node list.

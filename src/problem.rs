@@ -455,12 +455,8 @@ impl Problem {
         let mut v = Validated { geometry, mesh, material, scenes, load, rom: None };
         if let Some(dir) = &self.fidelity.rom {
             let (rom, manifest) = crate::rom::load(Path::new(dir), &self.scene_options(&v)).map_err(|e| anyhow!("fidelity.rom: {e:#}"))?;
-            if let Some(why) = manifest
-                .design_box
-                .iter()
-                .find_map(|p| v.geometry.design.values.get(&p.name).filter(|&&x| x < p.min - 1e-9 || x > p.max + 1e-9).map(|x| format!("{} = {x} outside [{}, {}]", p.name, p.min, p.max)))
-            {
-                bail!("fidelity.rom: the design is outside the reduced model's training box ({why}); use the full model");
+            if let Some(why) = crate::rom::outside_box(&manifest.design_box, &v.geometry.design) {
+                bail!("fidelity.rom: {why}");
             }
             v.rom = Some((std::sync::Arc::new(rom), manifest));
         }

@@ -400,6 +400,19 @@ pub fn load(dir: &std::path::Path, opts: &SceneOptions) -> Result<(Rom, Manifest
     Ok((Rom { basis, sample: m.sample.clone() }, m))
 }
 
+/// Why a design lies outside a reduced model's training box (None: inside).
+pub fn outside_box(design_box: &[crate::geometry::ParamSpec], d: &Design) -> Option<String> {
+    let out: Vec<String> = design_box
+        .iter()
+        .filter_map(|p| {
+            let v = d.values.get(&p.name).copied()?;
+            let tol = 1e-9 * (p.max - p.min).abs();
+            (v < p.min - tol || v > p.max + tol).then(|| format!("{} = {v} outside [{}, {}]", p.name, p.min, p.max))
+        })
+        .collect();
+    (!out.is_empty()).then(|| format!("the design is outside the reduced model's training box ({}); use the full model", out.join(", ")))
+}
+
 impl Manifest {
     fn n_pressure_rows(&self) -> usize {
         if self.kp > 0 {

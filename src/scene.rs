@@ -316,19 +316,8 @@ impl SceneFields {
 
 impl SceneModel {
     pub fn build(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind) -> Result<SceneModel, SceneError> {
-        if opts.rom.is_some() {
-            let out: Vec<String> = opts
-                .rom_box
-                .iter()
-                .filter_map(|p| {
-                    let v = geom.design.values.get(&p.name).copied()?;
-                    let tol = 1e-9 * (p.max - p.min).abs();
-                    (v < p.min - tol || v > p.max + tol).then(|| format!("{} = {v} outside [{}, {}]", p.name, p.min, p.max))
-                })
-                .collect();
-            if !out.is_empty() {
-                return Err(SceneError::OutsideRom(format!("the design is outside the reduced model's training box ({}); use the full model", out.join(", "))));
-            }
+        if let Some(why) = opts.rom.as_ref().and_then(|_| crate::rom::outside_box(&opts.rom_box, &geom.design)) {
+            return Err(SceneError::OutsideRom(why));
         }
         let spec = opts.mesh.with_sector(opts.sector).with_kind(opts.formulation.kind);
         let am = build_mesh(geom, &spec)?;

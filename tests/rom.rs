@@ -300,6 +300,9 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     let out = ev(&["--set", "fidelity.preset=\"default\""], "ev2");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("trained for another model"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = ev(&["--set", "design.range=\"extended\"", "--set", "design.l_mm=9.5"], "ev3");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("outside the reduced model's training box"), "{}", String::from_utf8_lossy(&out.stderr));
     let out = bin().args(["gradient", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--set", &rom_set, "--out"]).arg(dir.join("gr")).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("adjoint"), "{}", String::from_utf8_lossy(&out.stderr));

@@ -174,25 +174,7 @@ pub fn train_on(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: 
 
 /// The full-order ramps of `t.scenes` on each design (a failed ramp is logged and skipped).
 pub fn training_ramps(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], log: &(impl Fn(&str) + Sync)) -> Result<Vec<Ramp>> {
-    let reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
-    let jobs: Vec<(usize, SceneKind)> = (0..designs.len()).flat_map(|d| t.scenes.iter().map(move |&k| (d, k))).collect();
-    let ramps: Vec<Ramp> = jobs
-        .par_iter()
-        .filter_map(|&(d, k)| match full_ramp(&designs[d], opts, k, t.p_max_kpa, t.frame, &reference) {
-            Ok(r) => {
-                log(&format!("  training design {} ({}) {}: {} states, {} Newton iterations", d, label(&designs[d]), k.name(), r.states.len(), r.newton_iterations));
-                Some(r)
-            }
-            Err(e) => {
-                log(&format!("  training design {} {}: skipped ({e})", d, k.name()));
-                None
-            }
-        })
-        .collect();
-    if ramps.is_empty() {
-        return Err(anyhow!("no training states: every training ramp failed"));
-    }
-    Ok(ramps)
+    ramps_in(opts, t, designs, None, log)
 }
 
 /// The bases (POD of the ramps' states: displacement, and pressure when `t.pressure_modes`) of
@@ -480,20 +462,25 @@ fn read_ramp(path: &std::path::Path, opts: &SceneOptions, kind: SceneKind, frame
 /// recomputed (an interrupted training resumes), a new one is written as soon as it is done.
 /// `progress` is called once per ramp (cached or computed).
 pub fn training_ramps_cached(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], dir: &std::path::Path, progress: &(impl Fn(&str) + Sync)) -> Result<Vec<Ramp>> {
+    ramps_in(opts, t, designs, Some(dir), progress)
+}
+
+/// The training ramps, with a cache in `dir`/ramps when given.
+fn ramps_in(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], dir: Option<&std::path::Path>, progress: &(impl Fn(&str) + Sync)) -> Result<Vec<Ramp>> {
     let reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
     let jobs: Vec<(usize, SceneKind)> = (0..designs.len()).flat_map(|d| t.scenes.iter().map(move |&k| (d, k))).collect();
     let ramps: Vec<Ramp> = jobs
         .par_iter()
         .filter_map(|&(d, k)| {
-            let path = ramp_path(dir, d, k);
-            if let Some(r) = read_ramp(&path, opts, k, t.frame, &reference).filter(|r| r.design.values == designs[d].values) {
+            let path = dir.map(|dir| ramp_path(dir, d, k));
+            if let Some(r) = path.as_ref().and_then(|p| read_ramp(p, opts, k, t.frame, &reference)).filter(|r| r.design.values == designs[d].values) {
                 progress(&format!("design {d} {}: cached", k.name()));
                 return Some(r);
             }
             match full_ramp(&designs[d], opts, k, t.p_max_kpa, t.frame, &reference) {
                 Ok(r) => {
-                    if let Err(e) = write_ramp(&path, &r) {
-                        progress(&format!("warning: cannot cache {}: {e}", path.display()));
+                    if let Some(Err(e)) = path.as_ref().map(|p| write_ramp(p, &r)) {
+                        progress(&format!("warning: cannot cache {}: {e}", path.as_ref().map(|p| p.display().to_string()).unwrap_or_default()));
                     }
                     progress(&format!("design {d} {}: {} states, {} Newton iterations", k.name(), r.states.len(), r.newton_iterations));
                     Some(r)

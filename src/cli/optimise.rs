@@ -148,6 +148,10 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
 }
 
 /// The evaluations of DIR/evaluations.jsonl by run, in order (a torn last line is skipped).
+/// Each line carries its run's evaluation number k (replayed evaluations count): a later line
+/// with number k supersedes the record from k on. A resumed run that went elsewhere than its
+/// record (another binary's numerics, an older record without the scaled gradients) appends
+/// from where it diverged, and the next resume replays what that run did, not the stale tail.
 fn read_recorded(path: &std::path::Path) -> Result<std::collections::BTreeMap<String, Vec<crate::optimise::Evaluation>>> {
     let mut out: std::collections::BTreeMap<String, Vec<crate::optimise::Evaluation>> = Default::default();
     let text = match std::fs::read_to_string(path) {
@@ -158,8 +162,19 @@ fn read_recorded(path: &std::path::Path) -> Result<std::collections::BTreeMap<St
     for line in text.lines().filter(|l| !l.trim().is_empty()) {
         let Ok(j) = serde_json::from_str::<Value>(line) else { continue };
         let Some(run) = j.get("run").and_then(|r| r.as_str()).map(String::from) else { continue };
+        let k = j.get("evaluation").and_then(|k| k.as_u64()).map(|k| k as usize);
         if let Ok(e) = serde_json::from_value::<crate::optimise::Evaluation>(j) {
-            out.entry(run).or_default().push(e);
+            let v = out.entry(run).or_default();
+            match k {
+                Some(k) if k >= 1 => {
+                    v.truncate(k - 1);
+                    // a gap (a lost line) ends what can be replayed of this run
+                    if v.len() == k - 1 {
+                        v.push(e);
+                    }
+                }
+                _ => v.push(e),
+            }
         }
     }
     Ok(out)
@@ -355,4 +370,36 @@ fn plots(dir: &std::path::Path, runs: &[RunResult], unit: &str) -> Result<()> {
     line_plot(&dir.join("objective"), &po)?;
     line_plot(&dir.join("constraint"), &pc)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::json;
+
+    fn line(run: &str, k: usize, x: f64) -> String {
+        json!({"run": run, "evaluation": k, "x": [x], "design": {"p_kPa": x}, "objective": x, "gradient": {}, "constraints": {},
+               "feasible": true, "theta_deg": null, "tau_Nm": null, "max_radius_mm": 20.0, "p_limit_kPa": null, "scenes": {},
+               "status": "ok", "newton_iterations": 1, "adjoint_solves": 0, "time_s": 0.0, "warm_started": false,
+               "f_scaled": -x, "df_scaled": [1.0]})
+        .to_string()
+    }
+
+    #[test]
+    fn a_diverged_resume_supersedes_the_stale_tail_of_its_record() {
+        let dir = std::env::temp_dir().join(format!("twistopt-recorded-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("evaluations.jsonl");
+        // run a: 3 recorded; a resume replayed 1 and went elsewhere from evaluation 2 (2 new lines);
+        // run b: 2 recorded, then a torn line; run c: a lost line 2 (gap) ends its replay
+        let text = [line("a", 1, 0.1), line("a", 2, 0.2), line("b", 1, 0.5), line("a", 3, 0.3), line("b", 2, 0.6), line("a", 2, 0.25), line("a", 3, 0.35), line("c", 1, 0.7), line("c", 3, 0.9)]
+            .join("\n")
+            + "\n{\"run\": \"b\", \"evalu";
+        std::fs::write(&path, text).unwrap();
+        let rec = super::read_recorded(&path).unwrap();
+        let xs = |r: &str| rec[r].iter().map(|e| e.x[0]).collect::<Vec<_>>();
+        assert_eq!(xs("a"), vec![0.1, 0.25, 0.35]);
+        assert_eq!(xs("b"), vec![0.5, 0.6]);
+        assert_eq!(xs("c"), vec![0.7]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

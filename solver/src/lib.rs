@@ -8,6 +8,7 @@ pub mod adjoint;
 pub mod continuation;
 pub mod dofmap;
 pub mod element;
+pub mod fpenv;
 pub mod material;
 pub mod mesh;
 pub mod meshgen;

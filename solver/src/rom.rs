@@ -846,6 +846,13 @@ pub struct RomPath<'a> {
     rule: HexRule,
     /// the reduced pressure space's data on this geometry and sample
     mixed: Option<Mixed>,
+    /// J_e = ∂u_e/∂z of each sampled element, then of each cavity face and boundary edge, where
+    /// it does not depend on the state (no node on a rigid body or a rotating periodic pair);
+    /// None where it does (rebuilt at each evaluation)
+    jac_const: Vec<Option<Vec<f64>>>,
+    /// the state of the last tangent evaluation (z, λ), which `outputs` reads instead of
+    /// evaluating again
+    last: std::sync::Mutex<Option<(Vec<f64>, f64, RomState)>>,
 }
 
 /// State-independent data of a reduced pressure space on one geometry and sample: for each
@@ -897,6 +904,7 @@ pub enum DenseFactor {
 }
 
 /// What one reduced evaluation computes besides the residual and tangent.
+#[derive(Clone)]
 pub struct RomState {
     pub q: Vec<f64>,
     pub u: Vec<[f64; 3]>,
@@ -919,7 +927,30 @@ impl<'a> RomPath<'a> {
         }
         let rule = model.form.rule();
         let mixed = basis.pressure.as_ref().map(|pb| Mixed::new(model, pb, sample, &rule)).transpose()?;
-        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed })
+        let linear = |nodes: &[usize]| nodes.iter().all(|&n| (0..3).all(|c| matches!(model.dofs.comps[3 * n + c], Comp::Free(_) | Comp::Presc(_) | Comp::Lin(..))));
+        let mut scratch = Vec::new();
+        let mut jac_const = Vec::new();
+        let items =
+            sample.elements.iter().map(|&e| model.mesh.element(e)).chain(model.cavity.iter().flat_map(|c| c.face_nodes.iter().map(|v| v.as_slice()).chain(c.edges.iter().map(|e| e.0.as_slice()))));
+        for nodes in items {
+            jac_const.push(linear(nodes).then(|| {
+                let mut j = Vec::new();
+                red.jacobian(nodes, &[], &mut scratch, &mut j);
+                j
+            }));
+        }
+        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed, jac_const, last: Default::default() })
+    }
+
+    /// J of item `i` (see `jac_const`): the cached one, or built into `buf`.
+    fn item_jacobian<'b>(&'b self, i: usize, nodes: &[usize], kin: &[BodyKin], scratch: &mut Vec<(u32, f64)>, buf: &'b mut Vec<f64>) -> &'b [f64] {
+        match &self.jac_const[i] {
+            Some(j) => j,
+            None => {
+                self.red.jacobian(nodes, kin, scratch, buf);
+                buf
+            }
+        }
     }
 
     pub fn loads(&self, lam: f64) -> Loads {
@@ -955,6 +986,10 @@ impl<'a> RomPath<'a> {
         let kp = self.red.basis.pressure.as_ref().map_or(0, |p| p.kp);
         let mut b_red = (want_k && pressure.is_some()).then(|| Mat::<f64>::zeros(kp, m));
         let mut bv = Vec::new();
+        // products into reused buffers, sequentially (faer's operators use the global
+        // parallelism, whose dispatch costs more than these small products)
+        let mut kj = Mat::<f64>::zeros(nd, m);
+        let mut re = Mat::<f64>::zeros(m, 1);
         for (s_i, (&e, &w)) in self.sample.elements.iter().zip(&self.sample.weights).enumerate() {
             let conn = model.mesh.element(e);
             let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
@@ -968,10 +1003,10 @@ impl<'a> RomPath<'a> {
             .map_err(|err| crate::model::relabel(err, e))?;
             energy += w * info.energy;
             min_det = min_det.min(info.min_det_f);
-            self.red.jacobian(conn, &kin, &mut scratch, &mut jac);
-            let jm = faer::MatRef::from_row_major_slice(&jac, nd, m);
+            let jac = self.item_jacobian(s_i, conn, &kin, &mut scratch, &mut jac);
+            let jm = faer::MatRef::from_row_major_slice(jac, nd, m);
             let fm = faer::MatRef::from_column_major_slice(&f, nd, 1);
-            let re = jm.transpose() * fm;
+            faer::linalg::matmul::matmul(re.as_mut(), faer::Accum::Replace, jm.transpose(), fm, 1.0, faer::Par::Seq);
             let mut re2 = 0.0;
             for i in 0..m {
                 r[i] += w * re[(i, 0)];
@@ -981,7 +1016,7 @@ impl<'a> RomPath<'a> {
             add_body_nodal(model, conn, &f, w, &mut r_body);
             if let Some(kz) = kz.as_mut() {
                 let km = faer::MatRef::from_row_major_slice(&ke, nd, nd);
-                let kj = km * jm;
+                faer::linalg::matmul::matmul(kj.as_mut(), faer::Accum::Replace, km, jm, 1.0, faer::Par::Seq);
                 faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, jm.transpose(), kj.as_ref(), w, faer::Par::Seq);
             }
             if let (Some(br), Some(pb)) = (b_red.as_mut(), &self.red.basis.pressure) {
@@ -989,7 +1024,9 @@ impl<'a> RomPath<'a> {
                 let np = pb.np;
                 let bvm = faer::MatRef::from_row_major_slice(&bv, np, nd);
                 let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
-                faer::linalg::matmul::matmul(br.as_mut(), faer::Accum::Add, pe.transpose(), (bvm * jm).as_ref(), w, faer::Par::Seq);
+                let mut bj = Mat::<f64>::zeros(np, m);
+                faer::linalg::matmul::matmul(bj.as_mut(), faer::Accum::Replace, bvm, jm, 1.0, faer::Par::Seq);
+                faer::linalg::matmul::matmul(br.as_mut(), faer::Accum::Add, pe.transpose(), bj.as_ref(), w, faer::Par::Seq);
             }
         }
         if let (Some(kz), Some(br), Some((_, h)), Some(mx)) = (kz.as_mut(), b_red.as_ref(), pressure.as_ref(), self.mixed.as_ref()) {
@@ -1004,16 +1041,19 @@ impl<'a> RomPath<'a> {
             let items = cav.face_nodes.iter().map(|v| (v.as_slice(), true)).chain(cav.edges.iter().map(|e| (e.0.as_slice(), false)));
             let mut g = Vec::new();
             let mut h = Vec::new();
-            for (nodes, is_face) in items {
+            let mut gz = Mat::<f64>::zeros(m, 1);
+            let mut hj = Mat::<f64>::zeros(0, 0);
+            let n_sampled = self.sample.elements.len();
+            for (c_i, (nodes, is_face)) in items.enumerate() {
                 let xs: Vec<[f64; 3]> = nodes.iter().map(|&n| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]]).collect();
                 let ml = 3 * xs.len();
                 g.clear();
                 g.resize(ml, 0.0);
                 volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
-                self.red.jacobian(nodes, &kin, &mut scratch, &mut jac);
-                let jm = faer::MatRef::from_row_major_slice(&jac, ml, m);
+                let jac = self.item_jacobian(n_sampled + c_i, nodes, &kin, &mut scratch, &mut jac);
+                let jm = faer::MatRef::from_row_major_slice(jac, ml, m);
                 let gm = faer::MatRef::from_column_major_slice(&g, ml, 1);
-                let gz = jm.transpose() * gm;
+                faer::linalg::matmul::matmul(gz.as_mut(), faer::Accum::Replace, jm.transpose(), gm, 1.0, faer::Par::Seq);
                 for i in 0..m {
                     dvol[i] += gz[(i, 0)];
                     r[i] -= p * gz[(i, 0)];
@@ -1029,7 +1069,10 @@ impl<'a> RomPath<'a> {
                             surface::edge_volume_hessian(&xs, &mut h);
                         }
                         let hm = faer::MatRef::from_row_major_slice(&h, ml, ml);
-                        let hj = hm * jm;
+                        if hj.nrows() != ml {
+                            hj = Mat::<f64>::zeros(ml, m);
+                        }
+                        faer::linalg::matmul::matmul(hj.as_mut(), faer::Accum::Replace, hm, jm, 1.0, faer::Par::Seq);
                         faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, jm.transpose(), hj.as_ref(), -p, faer::Par::Seq);
                     }
                 }
@@ -1293,7 +1336,12 @@ impl<'a> PathModel for RomPath<'a> {
     fn eval(&self, z: &[f64], lam: f64, tangent: bool, _lin: Option<&[f64]>) -> Result<Eval<Mat<f64>>, EvalFailure> {
         let loads = self.loads(lam);
         let (r, k, st, scale, min_det) = self.evaluate(z, &loads, tangent).map_err(elem_eval)?;
-        let control = (self.volume_control && self.red.model.cavity.is_some()).then(|| (st.volume, st.dvol));
+        let control = (self.volume_control && self.red.model.cavity.is_some()).then(|| (st.volume, st.dvol.clone()));
+        if tangent && !self.functionals.is_empty() {
+            if let Ok(mut last) = self.last.lock() {
+                *last = Some((z.to_vec(), lam, st));
+            }
+        }
         Ok(Eval { r, scale, control, min_det, k })
     }
     fn factor(&self, k: &Mat<f64>, definite: bool) -> Result<DenseFactor, SolveError> {
@@ -1336,8 +1384,10 @@ impl<'a> PathModel for RomPath<'a> {
         if self.functionals.is_empty() {
             return Vec::new();
         }
-        match self.evaluate(z, &self.loads(lam), false) {
-            Ok((_, _, st, _, _)) => {
+        // the converged state's tangent evaluation is usually the last one (else evaluate)
+        let cached = self.last.lock().ok().and_then(|l| l.as_ref().filter(|(lz, ll, _)| *ll == lam && lz.as_slice() == z).map(|(_, _, st)| st.clone()));
+        match cached.map(Ok).unwrap_or_else(|| self.evaluate(z, &self.loads(lam), false).map(|e| e.2)) {
+            Ok(st) => {
                 let fs = self.functional_state(&st);
                 self.functionals.iter().map(|f| f.eval(self.red.model, &fs).unwrap_or(f64::NAN)).collect()
             }

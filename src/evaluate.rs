@@ -343,6 +343,7 @@ fn scene_json(r: &SceneResult) -> Value {
         "newton_iterations": r.newton_iterations,
         "wall_time_s": r.wall_time_s,
         "rom_indicator": r.rom_indicator,
+        "rom_fallback": r.rom_fallback,
     })
 }
 
@@ -380,13 +381,14 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
         let pmax = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::max);
         let pmin = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::min);
         log(&format!(
-            "scene {}: {}{}; {} steps recorded, p from {pmin} to {pmax} kPa, {} dofs, {:.1} s",
+            "scene {}: {}{}; {} steps recorded, p from {pmin} to {pmax} kPa, {} dofs, {:.1} s{}",
             r.scene,
             r.status,
             if r.cause.is_empty() { String::new() } else { format!(" ({})", r.cause) },
             r.steps.len(),
             r.dofs,
-            r.wall_time_s
+            r.wall_time_s,
+            r.rom_fallback.as_ref().map(|w| format!(" (full model: {w})")).unwrap_or_default()
         ));
         r
     };
@@ -567,6 +569,7 @@ mod tests {
             fields: None,
             states: Vec::new(),
             rom_indicator: None,
+            rom_fallback: None,
         }
     }
 

@@ -290,11 +290,16 @@ pub struct FidelitySection {
     /// the full model; it must have been trained for this mesh, element, material and scenes
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rom: Option<String>,
+    /// with `rom`: a scene whose reduced ramp ends with an error indicator above this value (or
+    /// in a solver failure) is run again on the full model; default: the model's calibrated
+    /// value (`rom validate --calibrate`), else none; `inf` turns the fallback off
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom_fallback: Option<f64>,
 }
 
 impl Default for FidelitySection {
     fn default() -> Self {
-        FidelitySection { preset: Some("default".into()), mesh: None, rom: None }
+        FidelitySection { preset: Some("default".into()), mesh: None, rom: None, rom_fallback: None }
     }
 }
 
@@ -453,6 +458,14 @@ impl Problem {
             (None, None) => MeshSpec::preset("default").map_err(|e| anyhow!("fidelity: {e}"))?,
         };
         let mut v = Validated { geometry, mesh, material, scenes, load, rom: None };
+        if let Some(t) = self.fidelity.rom_fallback {
+            if !(t >= 0.0) {
+                bail!("fidelity.rom_fallback = {t}: the error-indicator threshold must be >= 0 (inf: no fallback)");
+            }
+            if self.fidelity.rom.is_none() {
+                bail!("fidelity.rom_fallback needs fidelity.rom (a reduced model to fall back from)");
+            }
+        }
         if let Some(dir) = &self.fidelity.rom {
             let (rom, manifest) = crate::rom::load(Path::new(dir), &self.scene_options(&v)).map_err(|e| anyhow!("fidelity.rom: {e:#}"))?;
             if let Some(why) = crate::rom::outside_box(&manifest.design_box, &v.geometry.design) {
@@ -473,6 +486,7 @@ impl Problem {
         if let Some((rom, m)) = &v.rom {
             o.rom = Some(rom.clone());
             o.rom_box = m.design_box.clone();
+            o.rom_fallback = self.fidelity.rom_fallback.or(m.fallback_indicator).filter(|t| t.is_finite());
         }
         o
     }

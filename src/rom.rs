@@ -300,6 +300,13 @@ pub struct Manifest {
     /// full vs reduced on held-out designs, when measured at training (`--validate N`)
     #[serde(default)]
     pub validation: Option<serde_json::Value>,
+    /// the error-indicator threshold above which a scene falls back to the full model
+    /// (`SceneOptions::rom_fallback`), calibrated on a validation (`rom validate --calibrate`)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_indicator: Option<f64>,
+    /// how it was calibrated (the validation, the rule, the share of designs it sends back)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_calibration: Option<serde_json::Value>,
 }
 
 fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {
@@ -512,59 +519,121 @@ pub fn omega_of(free: &crate::scene::SceneResult, blocked: &crate::scene::SceneR
 /// Full vs reduced model, free + blocked ramped to failure, on seeded random designs of the
 /// Table-I box: per design the end pressures, Ω and CPU s of both; and the error summary.
 pub fn validate(opts: &SceneOptions, rom: std::sync::Arc<Rom>, count: usize, seed: u64, p_max_kpa: f64, progress: &(impl Fn(&str) + Sync)) -> Result<serde_json::Value> {
-    use crate::scene::run_pressure;
-    let designs = random_designs(count, seed);
-    let mut ro = opts.clone();
-    ro.rom = Some(rom);
-    let mut full = opts.clone();
-    full.rom = None;
-    // one design at a time, so that the process CPU time is the design's (the models assemble in
-    // parallel themselves)
-    let rows: Vec<serde_json::Value> = designs
+    let rows: Vec<serde_json::Value> = random_designs(count, seed)
         .iter()
-        .map(|d| {
-            let g = ActuatorGeometry::new(d, RangePolicy::TableI).map_err(|e| anyhow!("{e}"))?;
-            let run = |o: &SceneOptions| -> Result<(crate::scene::SceneResult, crate::scene::SceneResult, f64)> {
-                let c0 = crate::evaluate::process_cpu_time_s();
-                let f = run_pressure(&g, o, SceneKind::Free, &[p_max_kpa])?;
-                let b = run_pressure(&g, o, SceneKind::Blocked, &[p_max_kpa])?;
-                Ok((f, b, crate::evaluate::process_cpu_time_s() - c0))
-            };
-            let (ff, fb, cf) = run(&full)?;
-            let (rf, rb, cr) = run(&ro)?;
-            let end = |r: &crate::scene::SceneResult| r.steps.last().map(|s| s.p_kpa).unwrap_or(0.0);
-            let (of, _) = omega_of(&ff, &fb);
-            let (or, _) = omega_of(&rf, &rb);
-            progress(&format!("validation {}: Ω full {of:.3} reduced {or:.3}", label(d)));
-            Ok(serde_json::json!({
-                "design": d, "omega_full": of, "omega_rom": or,
-                "p_end_free_full": end(&ff), "p_end_free_rom": end(&rf), "p_end_blocked_full": end(&fb), "p_end_blocked_rom": end(&rb),
-                "status_full": [ff.status.to_string(), fb.status.to_string()], "status_rom": [rf.status.to_string(), rb.status.to_string()],
-                "cpu_s_full": cf, "cpu_s_rom": cr,
-            }))
+        .enumerate()
+        .map(|(i, d)| {
+            let row = validation_row(opts, &rom, i, d, p_max_kpa)?;
+            progress(&format!("validation {}: Ω full {:.3} reduced {:.3}", label(d), row["omega_full"].as_f64().unwrap_or(f64::NAN), row["omega_rom"].as_f64().unwrap_or(f64::NAN)));
+            Ok(row)
         })
         .collect::<Result<_>>()?;
+    Ok(validation_summary(rows, count, seed))
+}
+
+/// One validation row: design `index` of the seeded set, full and reduced model, free + blocked
+/// ramped to `p_max_kpa` or failure, one scene at a time (the process CPU time is the design's;
+/// the models assemble in parallel themselves).
+pub fn validation_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usize, d: &Design, p_max_kpa: f64) -> Result<serde_json::Value> {
+    use crate::scene::run_pressure;
+    let mut ro = opts.clone();
+    ro.rom = Some(rom.clone());
+    // the reduced model's own answer (no fallback), against the full model
+    ro.rom_fallback = None;
+    let mut full = opts.clone();
+    full.rom = None;
+    let g = ActuatorGeometry::new(d, RangePolicy::TableI).map_err(|e| anyhow!("{e}"))?;
+    let run = |o: &SceneOptions| -> Result<(crate::scene::SceneResult, crate::scene::SceneResult, f64)> {
+        let c0 = crate::evaluate::process_cpu_time_s();
+        let f = run_pressure(&g, o, SceneKind::Free, &[p_max_kpa])?;
+        let b = run_pressure(&g, o, SceneKind::Blocked, &[p_max_kpa])?;
+        Ok((f, b, crate::evaluate::process_cpu_time_s() - c0))
+    };
+    let (ff, fb, cf) = run(&full)?;
+    let (rf, rb, cr) = run(&ro)?;
+    let end = |r: &crate::scene::SceneResult| r.steps.last().map(|s| s.p_kpa).unwrap_or(0.0);
+    let (of, _) = omega_of(&ff, &fb);
+    let (or, _) = omega_of(&rf, &rb);
+    Ok(serde_json::json!({
+        "index": index, "design": d, "omega_full": of, "omega_rom": or,
+        "p_end_free_full": end(&ff), "p_end_free_rom": end(&rf), "p_end_blocked_full": end(&fb), "p_end_blocked_rom": end(&rb),
+        "status_full": [ff.status.to_string(), fb.status.to_string()], "status_rom": [rf.status.to_string(), rb.status.to_string()],
+        "indicator_rom": [rf.rom_indicator, rb.rom_indicator],
+        "cpu_s_full": cf, "cpu_s_rom": cr,
+    }))
+}
+
+/// The fallback threshold calibrated on validation rows ([`validation_row`]): a row is *bad*
+/// when its reduced Ω is off by more than 3 % and by more than 0.1 % of the rows' largest Ω, or
+/// an end pressure by more than 1 %; a row's indicator is the larger of its two scenes'. The
+/// threshold sends every bad row back to the full model: just below the smallest bad row's
+/// indicator (with no bad row: the largest indicator seen, so that only designs beyond the
+/// validated range fall back). Returns the threshold and the calibration record (how many rows
+/// are bad, how many good rows it also sends back).
+pub fn calibrate_fallback(rows: &[serde_json::Value]) -> Option<(f64, serde_json::Value)> {
+    let num = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
     let rel = |a: f64, b: f64| if b != 0.0 { ((a - b) / b).abs() } else { (a - b).abs() };
-    let mut e_om: Vec<f64> = rows.iter().map(|r| rel(r["omega_rom"].as_f64().unwrap_or(0.0), r["omega_full"].as_f64().unwrap_or(0.0))).collect();
-    let mut e_p: Vec<f64> = rows
-        .iter()
-        .flat_map(|r| {
-            [
-                rel(r["p_end_free_rom"].as_f64().unwrap_or(0.0), r["p_end_free_full"].as_f64().unwrap_or(0.0)),
-                rel(r["p_end_blocked_rom"].as_f64().unwrap_or(0.0), r["p_end_blocked_full"].as_f64().unwrap_or(0.0)),
-            ]
-        })
-        .collect();
+    let rows: Vec<&serde_json::Value> = rows.iter().filter(|r| r.get("error").is_none()).collect();
+    let omega_max = rows.iter().map(|r| num(r, "omega_full")).filter(|v| v.is_finite()).fold(0.0f64, f64::max);
+    let indicator = |r: &serde_json::Value| -> f64 {
+        let v: Vec<Option<f64>> = r["indicator_rom"].as_array().map(|a| a.iter().map(|x| x.as_f64()).collect()).unwrap_or_default();
+        if v.is_empty() || v.iter().any(|x| x.is_none()) {
+            f64::INFINITY // no indicator: the fallback runs anyway
+        } else {
+            v.into_iter().flatten().fold(0.0f64, f64::max)
+        }
+    };
+    let bad = |r: &serde_json::Value| -> bool {
+        let (om_r, om_f) = (num(r, "omega_rom"), num(r, "omega_full"));
+        let omega_bad = !(rel(om_r, om_f) <= 0.03 || (om_r - om_f).abs() <= 1e-3 * omega_max);
+        let p_bad = [("p_end_free_rom", "p_end_free_full"), ("p_end_blocked_rom", "p_end_blocked_full")].iter().any(|(a, b)| !(rel(num(r, a), num(r, b)) <= 0.01));
+        omega_bad || p_bad
+    };
+    if rows.is_empty() {
+        return None;
+    }
+    let bad_ind: Vec<f64> = rows.iter().filter(|r| bad(r)).map(|r| indicator(r)).collect();
+    let finite_max = rows.iter().map(|r| indicator(r)).filter(|v| v.is_finite()).fold(0.0f64, f64::max);
+    let threshold = match bad_ind.iter().copied().fold(f64::INFINITY, f64::min) {
+        m if m.is_finite() => m * (1.0 - 1e-6),
+        _ => finite_max,
+    };
+    let back = rows.iter().filter(|r| indicator(r) > threshold).count();
+    let good_back = rows.iter().filter(|r| indicator(r) > threshold && !bad(r)).count();
+    Some((
+        threshold,
+        serde_json::json!({
+            "rule": "bad: Ω off by > 3 % and > 0.1 % of the largest Ω, or an end pressure off by > 1 %; threshold just below the smallest bad row's indicator (none bad: the largest indicator seen)",
+            "rows": rows.len(), "bad_rows": bad_ind.len(), "rows_falling_back": back, "good_rows_falling_back": good_back,
+            "share_falling_back": back as f64 / rows.len() as f64, "omega_full_max": omega_max, "threshold": threshold,
+        }),
+    ))
+}
+
+/// The error summary of validation rows ([`validation_row`]): Ω and end-pressure errors
+/// (median, p95, max), the count of designs whose Ω is within 3 % (and within 3 % or 0.1 % of
+/// the largest full-model Ω of the rows), statuses that agree, and the mean CPU s per design.
+pub fn validation_summary(rows: Vec<serde_json::Value>, count: usize, seed: u64) -> serde_json::Value {
+    let rel = |a: f64, b: f64| if b != 0.0 { ((a - b) / b).abs() } else { (a - b).abs() };
+    let num = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or(0.0);
+    let mut e_om: Vec<f64> = rows.iter().map(|r| rel(num(r, "omega_rom"), num(r, "omega_full"))).collect();
+    let mut e_p: Vec<f64> = rows.iter().flat_map(|r| [rel(num(r, "p_end_free_rom"), num(r, "p_end_free_full")), rel(num(r, "p_end_blocked_rom"), num(r, "p_end_blocked_full"))]).collect();
+    let omega_max = rows.iter().map(|r| num(r, "omega_full")).fold(0.0f64, f64::max);
+    let within3 = rows.iter().filter(|r| rel(num(r, "omega_rom"), num(r, "omega_full")) <= 0.03).count();
+    let within_floor = rows.iter().filter(|r| rel(num(r, "omega_rom"), num(r, "omega_full")) <= 0.03 || (num(r, "omega_rom") - num(r, "omega_full")).abs() <= 1e-3 * omega_max).count();
+    let statuses_agree = rows.iter().filter(|r| r["status_full"] == r["status_rom"]).count();
     let q = |v: &mut Vec<f64>, f: f64| -> f64 {
         v.sort_by(f64::total_cmp);
         v.get(((v.len().max(1) - 1) as f64 * f).round() as usize).copied().unwrap_or(f64::NAN)
     };
-    let cpu = |k: &str| rows.iter().map(|r| r[k].as_f64().unwrap_or(0.0)).sum::<f64>() / rows.len().max(1) as f64;
-    Ok(serde_json::json!({
-        "designs": count, "seed": seed,
+    let cpu = |k: &str| rows.iter().map(|r| num(r, k)).sum::<f64>() / rows.len().max(1) as f64;
+    serde_json::json!({
+        "designs": count, "seed": seed, "rows_done": rows.len(),
         "omega_rel_error": { "median": q(&mut e_om, 0.5), "p95": q(&mut e_om, 0.95), "max": q(&mut e_om, 1.0) },
         "p_end_rel_error": { "median": q(&mut e_p, 0.5), "p95": q(&mut e_p, 0.95), "max": q(&mut e_p, 1.0) },
+        "omega_within_3pct": within3, "omega_within_3pct_or_0.1pct_of_max": within_floor, "omega_full_max": omega_max,
+        "statuses_agree": statuses_agree,
         "cpu_s_per_design_full": cpu("cpu_s_full"), "cpu_s_per_design_rom": cpu("cpu_s_rom"),
         "rows": rows,
-    }))
+    })
 }

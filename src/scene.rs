@@ -112,6 +112,10 @@ pub struct SceneOptions {
     pub rom: Option<std::sync::Arc<twistopt_solver::rom::Rom>>,
     /// the design box the reduced model was trained on: a design outside it is refused
     pub rom_box: Vec<crate::geometry::ParamSpec>,
+    /// At `rom` fidelity: a scene whose reduced ramp ends with an error indicator above this
+    /// value, or in a solver failure (divergence, iteration or step limit), is run again on the
+    /// full model (None: never).
+    pub rom_fallback: Option<f64>,
 }
 
 impl SceneOptions {
@@ -127,6 +131,7 @@ impl SceneOptions {
             cap_load: true,
             rom: None,
             rom_box: Vec::new(),
+            rom_fallback: None,
         }
     }
 }
@@ -259,6 +264,11 @@ pub struct SceneResult {
     /// under the reduced pressure; one residual assembly). None on the full model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rom_indicator: Option<f64>,
+    /// Set when the reduced ramp was rejected (`SceneOptions::rom_fallback`) and this result is
+    /// the full model's: why (the reduced ramp's indicator or failure). Its states are then the
+    /// full model's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom_fallback: Option<String>,
 }
 
 /// The reduced model's error indicator at a path state z (reduced coordinates) and pressure
@@ -285,6 +295,7 @@ impl SceneResult {
             fields: None,
             states: Vec::new(),
             rom_indicator: None,
+            rom_fallback: None,
         }
     }
 }
@@ -686,6 +697,39 @@ impl LimitOutcome {
 /// maximum or instability (located on the path), or at a solver failure. Steps are returned
 /// sorted by pressure.
 pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64]) -> Result<SceneResult, SceneError> {
+    let r = run_pressure_once(geom, opts, kind, targets_kpa)?;
+    let (Some(_), Some(limit)) = (&opts.rom, opts.rom_fallback) else {
+        return Ok(r);
+    };
+    let why = match (r.status, r.rom_indicator) {
+        (SceneStatus::Divergence | SceneStatus::IterationLimit | SceneStatus::StepLimit, _) => format!("the reduced ramp ended in {} ({})", r.status, r.cause),
+        (_, None) => "the reduced ramp's error indicator could not be evaluated".to_string(),
+        (_, Some(ind)) if ind > limit => format!("the reduced ramp's error indicator {ind:.3} exceeds {limit}"),
+        _ => return Ok(r),
+    };
+    let mut full = opts.clone();
+    full.rom = None;
+    let mut f = run_pressure_once(geom, &full, kind, targets_kpa)?;
+    f.rom_indicator = r.rom_indicator;
+    f.rom_fallback = Some(why);
+    f.newton_iterations += r.newton_iterations;
+    f.wall_time_s += r.wall_time_s;
+    Ok(f)
+}
+
+/// The scene options a result's states belong to: without the reduced model where the result
+/// fell back to the full one.
+pub fn result_options<'a>(opts: &'a SceneOptions, r: &SceneResult) -> std::borrow::Cow<'a, SceneOptions> {
+    if r.rom_fallback.is_some() && opts.rom.is_some() {
+        let mut o = opts.clone();
+        o.rom = None;
+        std::borrow::Cow::Owned(o)
+    } else {
+        std::borrow::Cow::Borrowed(opts)
+    }
+}
+
+fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64]) -> Result<SceneResult, SceneError> {
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
     let mut pos: Vec<f64> = targets_kpa.iter().copied().filter(|p| *p > 0.0 && p.is_finite()).collect();
@@ -736,6 +780,7 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
     };
     Ok(SceneResult {
         rom_indicator,
+        rom_fallback: None,
         scene: kind.name().to_string(),
         status: status.0,
         cause: status.1,
@@ -755,6 +800,7 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
 /// when a step is already there or p lies beyond the branch). Used to evaluate the letter's Ω at
 /// the lower of two scenes' failure pressures without interpolation.
 pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, r: &mut SceneResult, p_kpa: f64) -> Result<(), SceneError> {
+    let opts = &*result_options(opts, r);
     let tol = 1e-9 * p_kpa.abs().max(1.0);
     if p_kpa == 0.0 || !p_kpa.is_finite() || r.steps.iter().any(|s| (s.p_kpa - p_kpa).abs() <= tol) || r.states.len() != r.steps.len() {
         return Ok(());

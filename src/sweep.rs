@@ -534,6 +534,10 @@ pub struct SceneSummary {
     /// at `rom` fidelity: the reduced model's error indicator (see `SceneResult::rom_indicator`)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rom_indicator: Option<f64>,
+    /// at `rom` fidelity: why the scene was run again on the full model (see
+    /// `SceneOptions::rom_fallback`); absent when the reduced result was kept
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom_fallback: Option<String>,
 }
 
 /// The outputs of one mode (free + blocked, or pure-twist + pure-twist-blocked) of a design.
@@ -683,6 +687,7 @@ fn scene_summary(r: &SceneResult) -> SceneSummary {
         path: r.path.clone(),
         wall_time_s: r.wall_time_s,
         rom_indicator: r.rom_indicator,
+        rom_fallback: r.rom_fallback.clone(),
     }
 }
 
@@ -1094,6 +1099,8 @@ pub fn write_outputs(out: &Path, manifest: &Manifest, rows: &[Row], wall_time_s:
         "fidelity": manifest.fidelity,
         "sweep_hash": manifest.sweep_hash,
         "sum_of_design_times_s": cpu,
+        "rom_fallbacks": {"designs": rows.iter().filter(|r| r.scenes.values().any(|s| s.rom_fallback.is_some())).count(),
+                          "scenes": rows.iter().map(|r| r.scenes.values().filter(|s| s.rom_fallback.is_some()).count()).sum::<usize>()},
         "mean_design_time_s": if rows.is_empty() { Value::Null } else { json!(cpu / rows.len() as f64) },
         "last_run": {"wall_time_s": wall_time_s, "designs_computed": computed, "threads": threads,
                      "designs_per_s": match (wall_time_s, computed) { (Some(t), Some(c)) if t > 0.0 && c > 0 => json!(c as f64 / t), _ => Value::Null }},
@@ -1278,6 +1285,7 @@ mod tests {
             fields: None,
             states: Vec::new(),
             rom_indicator: None,
+            rom_fallback: None,
         }
     }
 

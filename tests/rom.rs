@@ -302,11 +302,63 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     let out = bin().args(["gradient", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--set", &rom_set, "--out"]).arg(dir.join("gr")).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("adjoint"), "{}", String::from_utf8_lossy(&out.stderr));
-    // a sweep at ROM fidelity records it in its manifest
+    // the fallback: a threshold of 0 sends both scenes back to the full model, which then
+    // answers exactly as the full model does; a threshold no scene reaches keeps the reduced one
+    let out = ev(&["--set", "fidelity.rom_fallback=0"], "fb");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rb: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("fb/result.json")).unwrap()).unwrap();
+    for sc in ["free", "blocked"] {
+        let why = rb["scenes"][sc]["rom_fallback"].as_str().unwrap_or_default();
+        assert!(why.contains("indicator"), "{sc}: {}", rb["scenes"][sc]);
+        assert_eq!(rb["scenes"][sc]["steps"], rf["scenes"][sc]["steps"], "{sc}: the full model's steps");
+    }
+    assert_eq!(rb["omega_J_m3"], rf["omega_J_m3"]);
+    let out = ev(&["--set", "fidelity.rom_fallback=1e9"], "nofb");
+    assert!(out.status.success());
+    let rn: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("nofb/result.json")).unwrap()).unwrap();
+    assert!(rn["scenes"]["free"]["rom_fallback"].is_null() && rn["omega_J_m3"] == r["omega_J_m3"], "{}", rn["scenes"]["free"]);
+    let out = ev(&["--set", "fidelity.rom_fallback=-1"], "fbneg");
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("rom_fallback"), "{}", String::from_utf8_lossy(&out.stderr));
+    // rom validate on 2 random designs: rows and summary; a re-run resumes (nothing to do);
+    // --calibrate records the threshold in the manifest, which evaluations then use
+    let val = |extra: &[&str]| {
+        bin().args(["rom", "validate", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "2", "--seed", "3", "--rom"]).arg(&romdir).args(extra).output().unwrap()
+    };
+    let out = val(&[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let vdir = romdir.join("validation-seed3");
+    let rows: Vec<serde_json::Value> = std::fs::read_to_string(vdir.join("rows.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.len(), 2);
+    for row in &rows {
+        assert!(row["cpu_s_rom"].as_f64().unwrap() > 0.0 && row["cpu_s_full"].as_f64().unwrap() > 0.0, "{row}");
+        assert!(row["indicator_rom"].as_array().unwrap().iter().all(|v| v.as_f64().is_some_and(|x| x > 0.0)), "{row}");
+    }
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(vdir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["rows_done"], 2);
+    let out = val(&["--calibrate"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("2 already done"), "{}", String::from_utf8_lossy(&out.stdout));
+    assert_eq!(std::fs::read_to_string(vdir.join("rows.jsonl")).unwrap().lines().count(), 2, "resumed, not re-run");
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(romdir.join("manifest.json")).unwrap()).unwrap();
+    let t = m["fallback_indicator"].as_f64().unwrap();
+    assert!(t.is_finite() && t > 0.0, "{}", m["fallback_calibration"]);
+    assert_eq!(m["fallback_calibration"]["rows"], 2);
+    // another seed or model in the same directory is refused
+    let out = bin()
+        .args(["rom", "validate", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "2", "--seed", "4", "--rom"])
+        .arg(&romdir)
+        .arg("--out")
+        .arg(&vdir)
+        .output()
+        .unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("another model, seed"), "{}", String::from_utf8_lossy(&out.stderr));
+    // a sweep at ROM fidelity records it in its manifest, and its fallbacks in the summary
     let out =
         bin().args(["sweep", "problems/sweep-example.toml", "--set", "load.p_max_kPa=80", "--fidelity"]).arg(format!("rom:{}", romdir.display())).arg("--out").arg(dir.join("sw")).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let sm = std::fs::read_to_string(dir.join("sw/summary.json")).unwrap();
     assert!(sm.contains("rom:"), "{sm}");
+    let smj: serde_json::Value = serde_json::from_str(&sm).unwrap();
+    assert!(smj["rom_fallbacks"]["designs"].as_u64().is_some(), "{sm}");
     let _ = std::fs::remove_dir_all(&dir);
 }

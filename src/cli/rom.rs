@@ -15,6 +15,41 @@ pub enum RomCommand {
     /// displacements and of the element pressures, ECSW; writes DIR/manifest.json and
     /// DIR/basis.bin (and, with --validate N, full-vs-reduced errors on N random designs).
     Train(TrainArgs),
+    /// Compare a trained reduced model with the full model on seeded random designs of the
+    /// Table-I box, free + blocked ramped to failure, one design at a time: OUT/rows.jsonl (one
+    /// line per design, appended as each finishes: re-running the same command resumes) and
+    /// OUT/summary.json (errors, statuses, indicators, CPU s per design).
+    Validate(ValidateArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// Problem file the model was trained for (mesh, element, material, scene options).
+    #[arg(value_name = "PROBLEM.toml")]
+    pub problem: PathBuf,
+    /// Override a problem value: section.key=value (repeatable).
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
+    pub set: Vec<String>,
+    /// The reduced model's directory (`rom train --out`).
+    #[arg(long, value_name = "DIR")]
+    pub rom: PathBuf,
+    /// Number of random designs.
+    #[arg(long, default_value_t = 200)]
+    pub designs: usize,
+    /// Seed of the random designs (training uses corners and Halton points, so any seed gives
+    /// held-out designs).
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+    /// Pressure bound of the ramps (kPa).
+    #[arg(long, default_value_t = 100.0)]
+    pub p_max: f64,
+    /// Output directory (default: DIR/validation-seed<SEED>).
+    #[arg(long, value_name = "OUT")]
+    pub out: Option<PathBuf>,
+    /// Calibrate the model's fallback threshold on this validation and record it in
+    /// DIR/manifest.json (see `fidelity.rom_fallback` in problems/README.md).
+    #[arg(long)]
+    pub calibrate: bool,
 }
 
 #[derive(Debug, Args)]
@@ -57,6 +92,7 @@ pub struct TrainArgs {
 pub fn run(args: &RomArgs) -> Result<()> {
     match &args.command {
         RomCommand::Train(a) => train(a),
+        RomCommand::Validate(a) => validate(a),
     }
 }
 
@@ -121,6 +157,8 @@ fn train(a: &TrainArgs) -> Result<()> {
         train_cpu_s: crate::evaluate::process_cpu_time_s() - c0,
         train_wall_s: w0.elapsed().as_secs_f64(),
         validation: None,
+        fallback_indicator: None,
+        fallback_calibration: None,
     };
     crate::rom::save(&a.out, &rom, &manifest)?;
     println!(
@@ -148,6 +186,120 @@ fn train(a: &TrainArgs) -> Result<()> {
         manifest.validation = Some(val);
         manifest.train_cpu_s = crate::evaluate::process_cpu_time_s() - c0;
         crate::rom::save(&a.out, &rom, &manifest)?;
+    }
+    Ok(())
+}
+
+fn validate(a: &ValidateArgs) -> Result<()> {
+    let problem = Problem::load(&a.problem, &a.set)?;
+    let v = problem.validate()?;
+    let mut opts = problem.scene_options(&v);
+    opts.rom = None;
+    opts.keep_fields = false;
+    if a.designs == 0 {
+        anyhow::bail!("--designs must be positive");
+    }
+    if !(a.p_max > 0.0 && a.p_max <= 1000.0) {
+        anyhow::bail!("--p-max {} must be in (0, 1000] kPa", a.p_max);
+    }
+    let (rom, mut manifest) = crate::rom::load(&a.rom, &opts)?;
+    let rom = std::sync::Arc::new(rom);
+    let out = a.out.clone().unwrap_or_else(|| a.rom.join(format!("validation-seed{}", a.seed)));
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let rows_path = out.join("rows.jsonl");
+    let input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
+    let input_path = out.join("input.json");
+    if let Some(before) = std::fs::read_to_string(&input_path).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok()) {
+        if before != input {
+            anyhow::bail!("{} holds a validation of another model, seed or pressure bound ({before}); use another --out", out.display());
+        }
+    }
+    crate::sweep::write_atomic(&input_path, &serde_json::to_string_pretty(&input)?)?;
+    let mut rows: Vec<serde_json::Value> = crate::evaluate::read_json_lines(&rows_path);
+    let done: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r["index"].as_u64()).collect();
+    let designs = crate::rom::random_designs(a.designs, a.seed);
+    println!(
+        "validating {} ({} modes, {} pressure modes, {} elements) on {} random designs (seed {}), {} already done, into {}",
+        a.rom.display(),
+        manifest.k,
+        manifest.kp,
+        manifest.sample.elements.len(),
+        a.designs,
+        a.seed,
+        done.len(),
+        out.display()
+    );
+    let pb = indicatif::ProgressBar::with_draw_target(Some(a.designs as u64), indicatif::ProgressDrawTarget::stderr());
+    if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} designs, ETA {eta_precise} {msg}") {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_position(done.len() as u64);
+    for (i, d) in designs.iter().enumerate() {
+        if done.contains(&(i as u64)) {
+            continue;
+        }
+        match crate::rom::validation_row(&opts, &rom, i, d, a.p_max) {
+            Ok(row) => {
+                pb.suspend(|| {
+                    eprintln!(
+                        "  {i}: {}: Ω full {:.3} reduced {:.3} J/m³; {:.1} vs {:.1} CPU s",
+                        crate::rom::label(d),
+                        row["omega_full"].as_f64().unwrap_or(f64::NAN),
+                        row["omega_rom"].as_f64().unwrap_or(f64::NAN),
+                        row["cpu_s_rom"].as_f64().unwrap_or(f64::NAN),
+                        row["cpu_s_full"].as_f64().unwrap_or(f64::NAN)
+                    )
+                });
+                crate::evaluate::append_json_line(&rows_path, &row)?;
+                rows.push(row);
+            }
+            Err(e) => {
+                // recorded, so that the summary counts it and a resume does not retry it forever
+                let row = serde_json::json!({ "index": i, "design": d, "error": format!("{e:#}") });
+                pb.suspend(|| eprintln!("  {i}: {}: failed: {e:#}", crate::rom::label(d)));
+                crate::evaluate::append_json_line(&rows_path, &row)?;
+                rows.push(row);
+            }
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    rows.sort_by_key(|r| r["index"].as_u64().unwrap_or(u64::MAX));
+    let failed = rows.iter().filter(|r| r.get("error").is_some()).count();
+    let calibration = crate::rom::calibrate_fallback(&rows);
+    let ok: Vec<serde_json::Value> = rows.into_iter().filter(|r| r.get("error").is_none()).collect();
+    let mut summary = crate::rom::validation_summary(ok, a.designs, a.seed);
+    summary["failed"] = serde_json::json!(failed);
+    crate::sweep::write_atomic(&out.join("summary.json"), &serde_json::to_string_pretty(&summary)?)?;
+    println!(
+        "{} designs ({} failed): Ω within 3 % on {}, within 3 % or 0.1 % of the largest Ω on {}; Ω error median {:.2} %, p95 {:.2} %; end-pressure error median {:.3} %, p95 {:.3} %, max {:.3} %; statuses agree on {}; {:.2} vs {:.2} CPU s per design (reduced vs full); wrote {}",
+        summary["rows_done"],
+        failed,
+        summary["omega_within_3pct"],
+        summary["omega_within_3pct_or_0.1pct_of_max"],
+        100.0 * summary["omega_rel_error"]["median"].as_f64().unwrap_or(f64::NAN),
+        100.0 * summary["omega_rel_error"]["p95"].as_f64().unwrap_or(f64::NAN),
+        100.0 * summary["p_end_rel_error"]["median"].as_f64().unwrap_or(f64::NAN),
+        100.0 * summary["p_end_rel_error"]["p95"].as_f64().unwrap_or(f64::NAN),
+        100.0 * summary["p_end_rel_error"]["max"].as_f64().unwrap_or(f64::NAN),
+        summary["statuses_agree"],
+        summary["cpu_s_per_design_rom"].as_f64().unwrap_or(f64::NAN),
+        summary["cpu_s_per_design_full"].as_f64().unwrap_or(f64::NAN),
+        out.join("summary.json").display()
+    );
+    if let Some((t, c)) = &calibration {
+        println!(
+            "fallback threshold {t:.4}: {} bad rows; {} of {} rows would run again on the full model ({} of them good)",
+            c["bad_rows"], c["rows_falling_back"], c["rows"], c["good_rows_falling_back"]
+        );
+    }
+    if a.calibrate {
+        let (t, mut c) = calibration.ok_or_else(|| anyhow::anyhow!("--calibrate: no successful validation row"))?;
+        c["validation"] = serde_json::json!(out);
+        manifest.fallback_indicator = Some(t);
+        manifest.fallback_calibration = Some(c);
+        crate::sweep::write_atomic(&a.rom.join("manifest.json"), &serde_json::to_string_pretty(&manifest)?)?;
+        println!("recorded the fallback threshold in {}", a.rom.join("manifest.json").display());
     }
     Ok(())
 }

@@ -74,6 +74,9 @@ fn main() {
     if wanted("sweep_throughput") {
         sweep_throughput();
     }
+    if wanted("sweep_throughput_rom") {
+        sweep_throughput_rom();
+    }
     if wanted("cold_evaluation") {
         cold_evaluation();
     }
@@ -190,6 +193,54 @@ fn sweep_throughput() {
                 "note": "the previous solver (commit c08cba2) on this machine, same bench; its Ω interpolated τ linearly between ramp steps (errors up to 0.7 %), today's is computed at the exact common pressure"},
         }),
     );
+}
+
+/// [`sweep_throughput`]'s designs on the committed reduced model of the `sweep` preset
+/// (studies/rom/sweep-k80) and on the full model, one design at a time on one thread each:
+/// CPU s per design of both and the reduced model's Ω error.
+fn sweep_throughput_rom() {
+    use twistopt::sweep::{evaluate_design, problem_from_str, Shard, SweepConfig};
+    let rom_dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/rom/sweep-k80");
+    let text = format!(
+        "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\nrom = {}\nrom_fallback = inf\n[sweep]\nr_mm = [8.660254037844386, 17.0]\nl_mm = [10, 20]\nalpha_deg = [120, 300]\n",
+        toml_string(&rom_dir.display().to_string())
+    );
+    let (problem, section) = problem_from_str(&text, "bench", &[]).expect("problem");
+    let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).expect("config");
+    let v = cfg.problem.validate().expect("valid");
+    let mut ro = cfg.problem.scene_options(&v);
+    ro.keep_fields = false;
+    let mut fo = ro.clone();
+    fo.rom = None;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    let mut designs = Vec::new();
+    let (mut cpu_r, mut cpu_f) = (0.0, 0.0);
+    for i in (0..cfg.grid.len()).filter(|i| i % 3 == 0) {
+        let d = cfg.grid.design(i);
+        let (r, f) = pool.install(|| (evaluate_design(i, &d, cfg.grid.range, &v, &ro, cfg.p_max_kpa), evaluate_design(i, &d, cfg.grid.range, &v, &fo, cfg.p_max_kpa)));
+        cpu_r += r.wall_time_s;
+        cpu_f += f.wall_time_s;
+        let (or, of) = (r.primary.omega_j_m3, f.primary.omega_j_m3);
+        designs.push(json!({"id": r.id, "omega_rom_J_m3": or, "omega_full_J_m3": of,
+            "omega_rel_error": match (or, of) { (Some(a), Some(b)) if b != 0.0 => json!((a - b) / b), _ => Value::Null },
+            "rom_s": r.wall_time_s, "full_s": f.wall_time_s,
+            "rom_path": path_work(&r.scenes.values().map(|s| &s.path).collect::<Vec<_>>()),
+            "rom_indicator": r.scenes.iter().map(|(k, s)| (k.clone(), json!(s.rom_indicator))).collect::<serde_json::Map<_, _>>()}));
+    }
+    let n = designs.len() as f64;
+    println!("sweep_throughput_rom (sweep preset, one thread): {:.2} s per design reduced vs {:.2} s full ({:.1}×); Table-I grid ≈ {:.1} h on 2 cores; {}", cpu_r / n, cpu_f / n, cpu_f / cpu_r, 39_864.0 * cpu_r / n / 2.0 / 3600.0, json!(designs));
+    merge(
+        "sweep_throughput_rom",
+        json!({
+            "description": "sweep_throughput's 3 designs (free + blocked to failure or 150 kPa) on the committed reduced model studies/rom/sweep-k80 (80 modes, 10 pressure modes, 140 of 256 elements; no fallback) and on the full model, one thread, one design at a time; release build. Times depend on the machine's load",
+            "designs": designs, "rom_seconds_per_design": cpu_r / n, "full_seconds_per_design": cpu_f / n, "speedup": cpu_f / cpu_r,
+            "table1_grid_hours_on_2_cores": 39_864.0 * cpu_r / n / 2.0 / 3600.0, "target_rom_seconds_per_design": 0.18,
+        }),
+    );
+}
+
+fn toml_string(s: &str) -> String {
+    format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\""))
 }
 
 /// A cold evaluation of the default-mesh energy-density optimum as the optimiser makes it: free

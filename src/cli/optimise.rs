@@ -72,7 +72,7 @@ pub struct Selection {
 impl Selection {
     /// The selected (optimiser, start) runs of the full list, in its order.
     pub fn runs(&self, optimisers: &[String], n_starts: usize) -> Vec<(String, usize)> {
-        all_runs(optimisers, n_starts).into_iter().filter(|(o, s)| self.start.map_or(true, |i| i == *s) && self.optimiser.as_ref().map_or(true, |n| n == o)).collect()
+        all_runs(optimisers, n_starts).into_iter().filter(|(o, s)| self.start.unwrap_or(*s) == *s && self.optimiser.as_deref().unwrap_or(o) == o).collect()
     }
 
     fn is_all(&self) -> bool {

@@ -932,6 +932,17 @@ pub fn run_all(problem: &OptProblem, optimisers: &[String], starts: &[Vec<f64>],
     run_all_resumed(problem, optimisers, starts, &BTreeMap::new(), progress, each)
 }
 
+/// Every run of a multi-start optimisation, (optimiser, start index), in the order of the
+/// results (optimiser by optimiser, each over its starts).
+pub fn all_runs(optimisers: &[String], n_starts: usize) -> Vec<(String, usize)> {
+    optimisers.iter().flat_map(|o| (0..n_starts).map(move |s| (o.clone(), s))).collect()
+}
+
+/// The name of a run ("<optimiser> start <i>"), as in evaluations.jsonl and the progress lines.
+pub fn run_name(optimiser: &str, start: usize) -> String {
+    format!("{optimiser} start {start}")
+}
+
 /// [`run_all`], resuming interrupted runs: `recorded` holds each run's evaluations so far (by
 /// run name, "<optimiser> start <i>", in order), which are replayed instead of re-evaluated
 /// while each run asks for the same points; `each` sees only the new evaluations.
@@ -943,14 +954,27 @@ pub fn run_all_resumed(
     progress: impl Fn(&RunResult) + Sync,
     each: impl Fn(&str, usize, &Evaluation) + Sync,
 ) -> Vec<RunResult> {
+    run_selected(problem, &all_runs(optimisers, starts.len()), starts, recorded, progress, each)
+}
+
+/// [`run_all_resumed`] on some of the runs: `jobs` lists (optimiser, index into `starts`). A run
+/// of a subset is the same run as in the full multi-start (same starting point, same name), so
+/// that runs done by separate processes can be joined (`twistopt optimise-merge`).
+pub fn run_selected(
+    problem: &OptProblem,
+    jobs: &[(String, usize)],
+    starts: &[Vec<f64>],
+    recorded: &BTreeMap<String, Vec<Evaluation>>,
+    progress: impl Fn(&RunResult) + Sync,
+    each: impl Fn(&str, usize, &Evaluation) + Sync,
+) -> Vec<RunResult> {
     use rayon::prelude::*;
-    let jobs: Vec<(String, usize)> = optimisers.iter().flat_map(|o| (0..starts.len()).map(move |s| (o.clone(), s))).collect();
     let done = Mutex::new(());
     let stages = problem.stage_problems();
     jobs.par_iter()
         .map(|(name, si)| {
             let t0 = Instant::now();
-            let run_name = format!("{name} start {si}");
+            let run_name = run_name(name, *si);
             let counter = std::cell::Cell::new(0usize);
             let mut evaluations: Vec<Evaluation> = Vec::new();
             let mut statuses = Vec::new();

@@ -22,7 +22,8 @@ pub mod verify;
 ///
 /// Available now: `geometry` (closed-form summary, mesh, VTU/STL/INP exports), `evaluate` (FE
 /// load scenes of a problem file), `gradient` (adjoint sensitivities), `optimise` (gradient-based
-/// design optimisation), `sweep` / `sweep-merge` (grid sweeps), `verify`, `export` (CalculiX
+/// design optimisation), `optimise-merge` (joins runs done as separate tasks), `sweep` /
+/// `sweep-merge` (grid sweeps), `verify`, `export` (CalculiX
 /// decks) and `crosscheck` (against CalculiX). Run
 /// `twistopt <COMMAND> --help` for the options.
 #[derive(Debug, Parser)]
@@ -49,6 +50,9 @@ pub enum Command {
     /// ballooning limit (problem file [optimise] section): nlopt MMA/SLSQP and a pure-Rust SQP,
     /// multi-start in parallel. Writes DIR/history.json, DIR/best.json and convergence plots.
     Optimise(optimise::OptimiseArgs),
+    /// Join the output directories of one optimisation's runs (`optimise --start I`, e.g. one
+    /// task per start): history.json with every run, best.json with the best over them.
+    OptimiseMerge(optimise::OptimiseMergeArgs),
     /// Run a problem's scenes on every design of a grid (Table I, every=K, or the problem's
     /// [sweep] section), ramped to failure; parallel, resumable (re-run the same command),
     /// shardable (--shard I/N); writes results.jsonl/csv, summary.json and Fig.-5 maps.
@@ -73,6 +77,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Evaluate(args) => evaluate::run(&args),
         Command::Gradient(args) => gradient::run(&args),
         Command::Optimise(args) => optimise::run(&args),
+        Command::OptimiseMerge(args) => optimise::run_merge(&args),
         Command::Sweep(args) => sweep::run(&args),
         Command::Rom(args) => rom::run(&args),
         Command::SweepMerge(args) => sweep::run_merge(&args),

@@ -1,14 +1,14 @@
 //! `twistopt optimise`: gradient-based optimisation of a problem file's `[optimise]` section
 //! (see [`crate::optimise`]); writes DIR/history.json, DIR/best.json and convergence plots.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
 use serde_json::{json, Value};
 
 use crate::evaluate::write_json_atomic;
-use crate::optimise::{build_problem, starting_points, Objective, RunResult, FEAS_TOL};
+use crate::optimise::{all_runs, build_problem, run_name, starting_points, Objective, RunResult, FEAS_TOL};
 use crate::plot::{line_plot, LinePlot, Series};
 use crate::problem::Problem;
 
@@ -34,6 +34,59 @@ pub struct OptimiseArgs {
     /// DIR/input.json shows the same problem, optimisers and starts.
     #[arg(long)]
     pub resume: bool,
+    /// Run only start I of the problem's optimise.starts (0 <= I < starts): the same starting
+    /// point and run names as in the full multi-start, so that separate processes (one per
+    /// start, e.g. the tasks of a Slurm job array) together make the full run; join their
+    /// directories with `twistopt optimise-merge`.
+    #[arg(long, value_name = "I")]
+    pub start: Option<usize>,
+    /// Run only this one of the problem's optimise.optimisers (with --start: one run).
+    #[arg(long, value_name = "NAME")]
+    pub optimiser: Option<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct OptimiseMergeArgs {
+    /// Output directories of one optimisation's runs (each written by `optimise`, e.g. with
+    /// --start I or --optimiser NAME). They must hold the same problem, optimisers and starts,
+    /// and no run twice.
+    #[arg(value_name = "RUN_DIR", required = true)]
+    pub dirs: Vec<PathBuf>,
+    /// Output directory: history.json with every run, best.json (the best feasible design over
+    /// the runs), plots, and input.json + evaluations.jsonl, so that `optimise PROBLEM --resume
+    /// --out DIR` finishes runs that are missing or were cut short.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// The runs an output directory holds: a `selection` in its input.json (written by --start and
+/// --optimiser) restricts the full multi-start (every optimiser × every start).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Selection {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optimiser: Option<String>,
+}
+
+impl Selection {
+    /// The selected (optimiser, start) runs of the full list, in its order.
+    pub fn runs(&self, optimisers: &[String], n_starts: usize) -> Vec<(String, usize)> {
+        all_runs(optimisers, n_starts).into_iter().filter(|(o, s)| self.start.unwrap_or(*s) == *s && self.optimiser.as_deref().unwrap_or(o) == o).collect()
+    }
+
+    fn is_all(&self) -> bool {
+        self.start.is_none() && self.optimiser.is_none()
+    }
+
+    fn describe(&self, n_starts: usize) -> String {
+        match (&self.optimiser, self.start) {
+            (None, None) => format!("from {n_starts} starts"),
+            (None, Some(i)) => format!("from start {i} of {n_starts}"),
+            (Some(_), None) => format!("only, from {n_starts} starts"),
+            (Some(_), Some(i)) => format!("only, from start {i} of {n_starts}"),
+        }
+    }
 }
 
 pub fn run(args: &OptimiseArgs) -> Result<()> {
@@ -56,15 +109,27 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     if map.is_some() && !(op.variables.iter().any(|x| x.name == "alpha_deg") && op.variables.iter().any(|x| x.name == "l_mm")) {
         anyhow::bail!("--map needs alpha_deg and l_mm among optimise.variables");
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let starts = starting_points(op.n(), sec.starts);
+    let selection = Selection { start: args.start, optimiser: args.optimiser.clone() };
+    if let Some(i) = selection.start {
+        if i >= starts.len() {
+            anyhow::bail!("--start {i}: the problem has optimise.starts = {} (give 0 to {})", starts.len(), starts.len() - 1);
+        }
+    }
+    if let Some(o) = &selection.optimiser {
+        if !sec.optimisers.contains(o) {
+            anyhow::bail!("--optimiser '{o}' is not among the problem's optimise.optimisers ({})", sec.optimisers.join(", "));
+        }
+    }
+    let jobs = selection.runs(&sec.optimisers, starts.len());
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let t0 = std::time::Instant::now();
     println!(
-        "optimise {} over {} with {} from {} starts ({} scenes per evaluation, mesh {}, at most {} evaluations per run)",
+        "optimise {} over {} with {} {} ({} scenes per evaluation, mesh {}, at most {} evaluations per run)",
         op.objective.name(),
         op.variables.iter().map(|v| v.name.as_str()).collect::<Vec<_>>().join(", "),
-        sec.optimisers.join(", "),
-        starts.len(),
+        selection.optimiser.clone().unwrap_or_else(|| sec.optimisers.join(", ")),
+        selection.describe(starts.len()),
         op.scenes.len(),
         stages_string(&op),
         if op.stages.is_empty() { op.max_evaluations } else { op.stages.iter().map(|s| s.max_evaluations).sum() }
@@ -72,7 +137,11 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     let finished: std::sync::Mutex<Vec<RunResult>> = std::sync::Mutex::new(Vec::new());
     let evals_path = args.out.join("evaluations.jsonl");
     let input_path = args.out.join("input.json");
-    let input = json!({ "problem": problem, "optimisers": sec.optimisers, "starts": starts });
+    // the full multi-start, and which of its runs this directory holds (only written when not all)
+    let mut input = json!({ "problem": problem, "optimisers": sec.optimisers, "starts": starts });
+    if !selection.is_all() {
+        input["selection"] = serde_json::to_value(&selection)?;
+    }
     let recorded = if args.resume {
         let before: Value = std::fs::read_to_string(&input_path)
             .ok()
@@ -80,7 +149,7 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
             .ok_or_else(|| anyhow::anyhow!("--resume: {} is missing or unreadable (was this directory written by `twistopt optimise`?)", input_path.display()))?;
         if before != serde_json::from_str::<Value>(&input.to_string())? {
             anyhow::bail!(
-                "--resume: {} records another problem, optimisers or starts than this command; resume with the same problem file and --set options, or use a new --out",
+                "--resume: {} records another problem, optimisers, starts or selection (--start, --optimiser) than this command; resume with the same problem file and options, or use a new --out",
                 input_path.display()
             );
         }
@@ -93,15 +162,15 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
         std::collections::BTreeMap::new()
     };
     crate::sweep::write_atomic(&input_path, &serde_json::to_string_pretty(&input)?)?;
-    let runs = crate::optimise::run_all_resumed(
+    let runs = crate::optimise::run_selected(
         &op,
-        &sec.optimisers,
+        &jobs,
         &starts,
         &recorded,
         |r| {
             if let Ok(mut f) = finished.lock() {
                 f.push(r.clone());
-                if let Err(e) = write_results(&args.out, &op, &v, &f, t0.elapsed().as_secs_f64()) {
+                if let Err(e) = write_results(&args.out, &op, &v, &f, t0.elapsed().as_secs_f64(), None) {
                     eprintln!("warning: could not write intermediate results: {e:#}");
                 }
             }
@@ -137,13 +206,245 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
         },
     );
     let unit = op.objective.reference().1;
-    let best = write_results(&args.out, &op, &v, &runs, t0.elapsed().as_secs_f64())?;
+    let best = write_results(&args.out, &op, &v, &runs, t0.elapsed().as_secs_f64(), None)?;
     println!("best: {}", serde_json::to_string(&best["summary"]).unwrap_or_default());
     plots(&args.out, &runs, unit)?;
     if let Some((na, nl)) = map {
         objective_map(&args.out, &op, &runs, na, nl)?;
     }
     println!("wrote history.json, best.json and plots to {} in {:.1} s", args.out.display(), t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// DIR/input.json of an `optimise` output directory: the full multi-start and which of its
+/// runs the directory holds.
+#[derive(Debug, serde::Deserialize)]
+struct Input {
+    problem: Value,
+    optimisers: Vec<String>,
+    starts: Vec<Vec<f64>>,
+    #[serde(default)]
+    selection: Option<Selection>,
+}
+
+impl Input {
+    fn read(dir: &Path) -> Result<Option<(Value, Input)>> {
+        let p = dir.join("input.json");
+        let text = match std::fs::read_to_string(&p) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e).with_context(|| format!("cannot read {}", p.display())),
+        };
+        let raw: Value = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: not JSON ({e})", p.display()))?;
+        let input: Input = serde_json::from_value(raw.clone()).map_err(|e| anyhow::anyhow!("{}: not an optimise input record ({e})", p.display()))?;
+        Ok(Some((raw, input)))
+    }
+
+    /// The full multi-start this directory belongs to (input.json without the selection).
+    fn full(raw: &Value) -> Value {
+        let mut v = raw.clone();
+        if let Some(o) = v.as_object_mut() {
+            o.remove("selection");
+        }
+        v
+    }
+
+    fn runs(&self) -> Vec<(String, usize)> {
+        self.selection.clone().unwrap_or_default().runs(&self.optimisers, self.starts.len())
+    }
+}
+
+/// A finished run as history.json records it.
+#[derive(serde::Deserialize)]
+struct HistoryRun {
+    optimiser: String,
+    start: usize,
+    x0: Vec<f64>,
+    status: String,
+    wall_time_s: f64,
+    best_evaluation: Option<usize>,
+    kkt: Option<f64>,
+    multipliers: Option<Vec<Option<f64>>>,
+    evaluations: Vec<crate::optimise::Evaluation>,
+}
+
+/// The finished runs of DIR/history.json and its wall time (none when the file is missing:
+/// no run finished).
+fn read_history(dir: &Path) -> Result<(Vec<RunResult>, f64)> {
+    let p = dir.join("history.json");
+    let text = match std::fs::read_to_string(&p) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((Vec::new(), 0.0)),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", p.display())),
+    };
+    let h: Value = serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: not JSON ({e})", p.display()))?;
+    let runs = h.get("runs").and_then(|r| r.as_array()).ok_or_else(|| anyhow::anyhow!("{}: no runs (not an optimise history)", p.display()))?;
+    let mut out = Vec::new();
+    for (k, r) in runs.iter().enumerate() {
+        let r: HistoryRun = serde_json::from_value(r.clone()).map_err(|e| anyhow::anyhow!("{}: run {k} is unreadable ({e})", p.display()))?;
+        let best = match r.best_evaluation {
+            Some(b) if b >= 1 && b <= r.evaluations.len() => Some(b - 1),
+            Some(b) => anyhow::bail!("{}: run '{}' has best_evaluation {b} of {} evaluations", p.display(), run_name(&r.optimiser, r.start), r.evaluations.len()),
+            None => None,
+        };
+        out.push(RunResult {
+            optimiser: r.optimiser,
+            start: r.start,
+            x0: r.x0,
+            status: r.status,
+            evaluations: r.evaluations,
+            best,
+            kkt: r.kkt,
+            multipliers: r.multipliers.map(|m| m.into_iter().map(|x| x.unwrap_or(f64::NAN)).collect()),
+            wall_time_s: r.wall_time_s,
+        });
+    }
+    Ok((out, h.get("wall_time_s").and_then(|t| t.as_f64()).unwrap_or(0.0)))
+}
+
+/// The lines of DIR/evaluations.jsonl by run name (complete lines only; a torn last line is
+/// left out, as `--resume` leaves it out).
+fn evaluation_lines(dir: &Path) -> Result<std::collections::BTreeMap<String, Vec<String>>> {
+    let p = dir.join("evaluations.jsonl");
+    let mut out: std::collections::BTreeMap<String, Vec<String>> = Default::default();
+    let text = match std::fs::read_to_string(&p) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(out),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", p.display())),
+    };
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        if let Some(run) = serde_json::from_str::<Value>(line).ok().and_then(|j| j.get("run").and_then(|r| r.as_str()).map(String::from)) {
+            out.entry(run).or_default().push(line.to_string());
+        }
+    }
+    Ok(out)
+}
+
+/// What `optimise-merge` did.
+pub struct MergeReport {
+    /// finished runs in the merged history
+    pub finished: usize,
+    /// runs of the multi-start
+    pub total: usize,
+    /// runs with evaluations but not finished (resumable)
+    pub unfinished: Vec<String>,
+    /// runs no directory has anything of
+    pub missing: Vec<String>,
+    pub best: Value,
+}
+
+/// Join the output directories of one optimisation's runs into `out` (see [`OptimiseMergeArgs`]).
+/// Runs are identified by name ("<optimiser> start <i>"); a run is taken from the directory
+/// whose selection holds it, and `out`'s own records (an earlier merge, a resume) fill in runs
+/// that no directory has anything of.
+pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<MergeReport> {
+    use std::collections::BTreeMap;
+    if dirs.is_empty() {
+        anyhow::bail!("optimise-merge: give at least one run directory");
+    }
+    let same = |a: &Path, b: &Path| matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y);
+    if let Some(d) = dirs.iter().find(|d| same(d, out)) {
+        anyhow::bail!("--out {} is one of the run directories; merge into a new directory", d.display());
+    }
+    let mut first: Option<(PathBuf, Value, Input)> = None;
+    let mut owner: BTreeMap<String, PathBuf> = BTreeMap::new();
+    let mut finished: BTreeMap<String, RunResult> = BTreeMap::new();
+    let mut lines: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    let mut wall = 0.0;
+    for d in dirs {
+        let (raw, input) = Input::read(d)?.ok_or_else(|| anyhow::anyhow!("{}: no input.json (not a directory written by `twistopt optimise`)", d.display()))?;
+        if let Some((d0, raw0, _)) = &first {
+            let (a, b) = (Input::full(raw0), Input::full(&raw));
+            if a != b {
+                let what: Vec<&str> = ["problem", "optimisers", "starts"].into_iter().filter(|k| a.get(k) != b.get(k)).collect();
+                anyhow::bail!("{} holds another optimisation than {} ({} differ)", d.display(), d0.display(), what.join(", "));
+            }
+        }
+        let covered = input.runs();
+        for (o, s) in &covered {
+            let name = run_name(o, *s);
+            if let Some(other) = owner.insert(name.clone(), d.clone()) {
+                anyhow::bail!("run '{name}' is in both {} and {} (give each run once)", other.display(), d.display());
+            }
+        }
+        let names: std::collections::BTreeSet<String> = covered.iter().map(|(o, s)| run_name(o, *s)).collect();
+        let (runs, w) = read_history(d)?;
+        wall += w;
+        for r in runs {
+            let name = run_name(&r.optimiser, r.start);
+            if !names.contains(&name) {
+                anyhow::bail!("{}: history.json has run '{name}', which its input.json does not select", d.display());
+            }
+            finished.insert(name, r);
+        }
+        for (name, l) in evaluation_lines(d)? {
+            if names.contains(&name) {
+                lines.insert(name, l);
+            }
+        }
+        if first.is_none() {
+            first = Some((d.clone(), raw, input));
+        }
+    }
+    let (_, raw0, input) = first.expect("at least one directory");
+    let full_input = Input::full(&raw0);
+    // what out already holds fills in runs that no directory has anything of
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    if let Some((raw, _)) = Input::read(out)? {
+        if Input::full(&raw) != full_input {
+            anyhow::bail!("{} holds another optimisation than {} (use a new --out)", out.display(), dirs[0].display());
+        }
+        let has = |name: &String, f: &BTreeMap<String, RunResult>, l: &BTreeMap<String, Vec<String>>| f.contains_key(name) || l.contains_key(name);
+        let (old_runs, _) = read_history(out)?;
+        let old_lines = evaluation_lines(out)?;
+        let take: Vec<String> = old_runs.iter().map(|r| run_name(&r.optimiser, r.start)).chain(old_lines.keys().cloned()).filter(|n| !has(n, &finished, &lines)).collect();
+        for r in old_runs {
+            let name = run_name(&r.optimiser, r.start);
+            if take.contains(&name) {
+                finished.insert(name, r);
+            }
+        }
+        for (name, l) in old_lines {
+            if take.contains(&name) {
+                lines.insert(name, l);
+            }
+        }
+    }
+    let problem: Problem = serde_json::from_value(input.problem.clone()).map_err(|e| anyhow::anyhow!("{}/input.json: cannot rebuild the problem ({e})", dirs[0].display()))?;
+    let v = problem.validate()?;
+    let (op, _) = build_problem(&problem, &v)?;
+    let all = all_runs(&input.optimisers, input.starts.len());
+    let runs: Vec<RunResult> = all.iter().filter_map(|(o, s)| finished.get(&run_name(o, *s)).cloned()).collect();
+    let unfinished: Vec<String> = all.iter().map(|(o, s)| run_name(o, *s)).filter(|n| !finished.contains_key(n) && lines.contains_key(n)).collect();
+    let missing: Vec<String> = all.iter().map(|(o, s)| run_name(o, *s)).filter(|n| !finished.contains_key(n) && !lines.contains_key(n)).collect();
+    // input.json and evaluations.jsonl as a run of the whole multi-start would have them, so
+    // that `optimise --resume --out OUT` replays the finished runs and completes the others
+    crate::sweep::write_atomic(&out.join("input.json"), &serde_json::to_string_pretty(&full_input)?)?;
+    let mut text = String::new();
+    for (o, s) in &all {
+        for l in lines.get(&run_name(o, *s)).into_iter().flatten() {
+            text.push_str(l);
+            text.push('\n');
+        }
+    }
+    crate::sweep::write_atomic(&out.join("evaluations.jsonl"), &text)?;
+    let best = write_results(out, &op, &v, &runs, wall, Some(dirs))?;
+    plots(out, &runs, op.objective.reference().1)?;
+    Ok(MergeReport { finished: runs.len(), total: all.len(), unfinished, missing, best })
+}
+
+pub fn run_merge(args: &OptimiseMergeArgs) -> Result<()> {
+    let r = merge(&args.dirs, &args.out)?;
+    println!("merged {} of {} runs from {} directories into {} (history.json, best.json, plots)", r.finished, r.total, args.dirs.len(), args.out.display());
+    println!("best: {}", serde_json::to_string(&r.best["summary"]).unwrap_or_default());
+    if !r.unfinished.is_empty() || !r.missing.is_empty() {
+        println!(
+            "not finished: {:?}; no record: {:?} (run `optimise PROBLEM --resume --out {}` with the same problem and --set options to complete them)",
+            r.unfinished,
+            r.missing,
+            args.out.display()
+        );
+    }
     Ok(())
 }
 
@@ -181,8 +482,9 @@ fn read_recorded(path: &std::path::Path) -> Result<std::collections::BTreeMap<St
 }
 
 /// Write history.json and best.json for the runs finished so far (atomically: an interrupted
-/// optimisation keeps the runs it completed). Returns best.json's content.
-fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &crate::problem::Validated, runs: &[RunResult], wall_time_s: f64) -> Result<Value> {
+/// optimisation keeps the runs it completed). Returns best.json's content. `merged_from`: the
+/// run directories an `optimise-merge` joined (recorded in both files).
+fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &crate::problem::Validated, runs: &[RunResult], wall_time_s: f64, merged_from: Option<&[PathBuf]>) -> Result<Value> {
     let unit = op.objective.reference().1;
     // history.json
     let hist_runs: Vec<Value> = runs
@@ -207,7 +509,7 @@ fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &cr
             })
         })
         .collect();
-    let history = json!({
+    let mut history = json!({
         "objective": op.objective.name(), "objective_unit": unit,
         "variables": op.variables, "fixed": op.fixed, "constraints": "radius:<scene> = (KS max radius − limit)/(limit − 20 mm) <= 0; stability = (p − (1 − margin)·p_limit)/(p range) <= 0", "stability_margin": crate::optimise::STABILITY_MARGIN,
         "ballooning_limit_mm": op.ballooning_limit_mm, "ks_rho_per_mm": op.ks_rho,
@@ -215,9 +517,13 @@ fn write_results(out: &std::path::Path, op: &crate::optimise::OptProblem, v: &cr
         "stages": op.stages.iter().map(|s| json!({"label": s.label, "mesh": s.mesh.size_string(), "max_evaluations": s.max_evaluations, "xtol_rel": s.xtol_rel, "ftol_rel": s.ftol_rel})).collect::<Vec<_>>(), "scenes": op.scenes.iter().map(|k| k.name()).collect::<Vec<_>>(),
         "runs": hist_runs, "wall_time_s": wall_time_s,
     });
+    let mut best = best_json(&op.objective, runs, &op.fixed);
+    if let Some(dirs) = merged_from {
+        let dirs: Vec<String> = dirs.iter().map(|d| d.display().to_string()).collect();
+        history["merged_from"] = json!(dirs);
+        best["merged_from"] = json!(dirs);
+    }
     write_json_atomic(&out.join("history.json"), &history)?;
-    // best.json
-    let best = best_json(&op.objective, &runs, &op.fixed);
     write_json_atomic(&out.join("best.json"), &best)?;
     Ok(best)
 }

@@ -11,6 +11,11 @@
 # Adjust partition, time and the twistopt path to your cluster; check the count first with
 #   twistopt sweep studies/sweep-table1/problem.toml --shard 0/64 --count
 #
+# Arguments after the script go to `twistopt sweep` (the same in every task), e.g. a subsample
+# at the coarse mesh, as scripts/cluster-test.sh runs this file on a local single-node Slurm:
+#   sbatch --array=0-3 --cpus-per-task=1 studies/sweep-table1/slurm-array.sh --grid every=22 --fidelity coarse
+# Environment (exported to the tasks by sbatch): TWISTOPT (binary), PROBLEM, OUT, SHARDS.
+#
 #SBATCH --job-name=twistopt-sweep
 #SBATCH --cpus-per-task=4
 #SBATCH --mem-per-cpu=1G
@@ -30,7 +35,8 @@ mkdir -p "$OUT"
 srun "$TWISTOPT" sweep "$PROBLEM" \
     --shard "${SLURM_ARRAY_TASK_ID}/${N}" \
     --threads "${SLURM_CPUS_PER_TASK:-1}" \
-    --out "$OUT/shard-$(printf '%04d' "$SLURM_ARRAY_TASK_ID")"
+    --out "$OUT/shard-$(printf '%04d' "$SLURM_ARRAY_TASK_ID")" \
+    "$@"
 
 # The last task to finish could merge; simpler is a dependent job:
 #   sbatch --dependency=afterok:<array job id> --wrap \

@@ -362,3 +362,73 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     assert!(smj["rom_fallbacks"]["designs"].as_u64().is_some(), "{sm}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The reduced model's sensitivities (direct method on the reduced tangent,
+/// `RomPath::direct_sensitivity`) of every scene functional to a design parameter (through the
+/// meshes of l ± h) and to the pressure equal the central differences of the reduced
+/// equilibria re-solved at the perturbed inputs.
+#[test]
+fn reduced_sensitivities_equal_finite_differences_of_reduced_equilibria() {
+    use twistopt_solver::continuation::correct;
+    use twistopt_solver::solve::NewtonOptions;
+    let o = opts("coarse");
+    let (r0, l0, a0) = (12.0, 14.0, 200.0);
+    let build = |l: f64, kind: SceneKind| SceneModel::build(&ActuatorGeometry::new(&Design::new(r0, l, a0), RangePolicy::TableI).unwrap(), &o, kind).unwrap();
+    for kind in [SceneKind::Free, SceneKind::Blocked] {
+        let sm = build(l0, kind);
+        let nn = sm.model.dofs.n_nodal();
+        // a basis of the full model's own states at 4, 8, 12 kPa and two smooth extra directions
+        let g = ActuatorGeometry::new(&Design::new(r0, l0, a0), RangePolicy::TableI).unwrap();
+        let full = twistopt::scene::run_pressure(&g, &o, kind, &[4.0, 8.0, 12.0]).unwrap();
+        let mut snaps: Vec<Vec<f64>> = full.states.iter().filter(|q| q.iter().any(|v| *v != 0.0)).map(|q| q[..nn].to_vec()).collect();
+        snaps.extend((1..3).map(|j| (0..nn).map(|i| 1e-3 * ((i * j) as f64 * 0.01).sin()).collect::<Vec<f64>>()));
+        let basis = Basis::pod(&snaps, Truncation::Modes(5)).unwrap();
+        let sample = Sample::all(sm.model.mesh.n_elements());
+        let p_to = 12.0;
+        fn path<'a>(m: &'a SceneModel, basis: &'a Basis, sample: &'a Sample, p_to: f64) -> RomPath<'a> {
+            RomPath::new(&m.model, basis, sample, m.loads(0.0, 0.0), m.loads(p_to, 0.0), m.functionals()).unwrap()
+        }
+        let path = |m| path(m, &basis, &sample, p_to);
+        let rp = path(&sm);
+        let newton = NewtonOptions { rtol: 1e-13, ..NewtonOptions::default() };
+        let solve = |p: &RomPath, z0: &[f64], lam: f64| -> Vec<f64> {
+            correct(p, z0, lam, None, &newton, false, None, false).unwrap_or_else(|e| panic!("{kind:?}: reduced Newton failed at λ {lam}: {:?}", e.0)).q
+        };
+        let lam = 0.5;
+        let z0 = vec![0.0; rp.dim()];
+        let zs = solve(&rp, &z0, lam);
+        let k = rp.eval(&zs, lam, true, None).unwrap().k.unwrap();
+        let factor = rp.factor(&k, false).unwrap();
+        // the design parameter l (mm)
+        let h = 1e-5;
+        let (sp, sm_) = (build(l0 + h, kind), build(l0 - h, kind));
+        let (pp, pm) = (path(&sp), path(&sm_));
+        let (dz, df) = rp.direct_sensitivity(&zs, &factor, (&pp, lam), (&pm, lam), h).unwrap();
+        assert_eq!(dz.len(), rp.dim());
+        let big = 2e-3;
+        let (bp, bm) = (build(l0 + big, kind), build(l0 - big, kind));
+        let (qp_, qm_) = (path(&bp), path(&bm));
+        let fp = qp_.functional_values(&solve(&qp_, &zs, lam), lam).unwrap();
+        let fm = qm_.functional_values(&solve(&qm_, &zs, lam), lam).unwrap();
+        // the pressure (per kPa: λ ± h_λ with dp/dλ = p_to)
+        let hl = 1e-6;
+        let (_, dfp) = rp.direct_sensitivity(&zs, &factor, (&rp, lam + hl), (&rp, lam - hl), hl * p_to).unwrap();
+        let bl = 2e-4;
+        let gp = rp.functional_values(&solve(&rp, &zs, lam + bl), lam + bl).unwrap();
+        let gm = rp.functional_values(&solve(&rp, &zs, lam - bl), lam - bl).unwrap();
+        let f0 = rp.functional_values(&zs, lam).unwrap();
+        // (the reaction of a free DOF is zero at every equilibrium: nothing to compare)
+        for (i, f) in sm.functionals().iter().enumerate() {
+            if kind == SceneKind::Free && matches!(f, twistopt_solver::adjoint::Functional::BodyReaction { dof: 5, .. }) {
+                continue;
+            }
+            for (what, direct, fd) in [("l_mm", df[i], (fp[i] - fm[i]) / (2.0 * big)), ("p_kPa", dfp[i], (gp[i] - gm[i]) / (2.0 * bl * p_to))] {
+                assert!(direct.is_finite() && fd.is_finite(), "{kind:?} {f:?} {what}: {direct} vs {fd}");
+                assert!(
+                    (direct - fd).abs() <= 5e-5 * fd.abs().max(direct.abs()) + 1e-8 * f0[i].abs().max(1e-3),
+                    "{kind:?} {f:?} d/d{what}: direct {direct} vs central difference of re-solved equilibria {fd}"
+                );
+            }
+        }
+    }
+}

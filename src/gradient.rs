@@ -132,6 +132,9 @@ fn directions(geom: &ActuatorGeometry, opts: &SceneOptions, sm: &SceneModel) -> 
 /// With `limit_cap`, the pressure is also continued from p up to that cap to find where the
 /// scene fails (its pressure maximum) and the sensitivity of that limit pressure.
 pub fn scene_gradient(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, warm: Option<(&[f64], f64)>, limit_cap: Option<f64>) -> Result<SceneGradient, SceneError> {
+    if opts.rom.is_some() {
+        return rom_scene_gradient(geom, opts, kind, p_kpa, rho, limit_cap);
+    }
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
     let mut eq = equilibrium(&sm, opts, p_kpa, warm);
@@ -238,6 +241,220 @@ pub fn scene_gradient(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneK
     Ok(out)
 }
 
+/// The inputs s of a reduced-model gradient: the design's parameters, the pressure (kPa) and μ
+/// (MPa, at fixed κ/μ; Neo-Hookean only), each with its central-difference step h.
+fn rom_inputs(geom: &ActuatorGeometry, opts: &SceneOptions, p_kpa: f64) -> Vec<(String, f64)> {
+    let mut v: Vec<(String, f64)> = geom.design.values.keys().map(|n| (n.clone(), 1e-6 * param_scale(n, geom, opts, p_kpa))).collect();
+    v.push((P_PRESSURE.into(), 1e-6 * p_kpa.abs().max(1.0)));
+    if let Material::NeoHookean(nh) = opts.material {
+        v.push((P_MU.into(), 1e-6 * nh.mu));
+    }
+    v
+}
+
+/// The scene model with design parameter or μ `name` moved by `delta`: the mesh's nodes moved
+/// along the parameter's exact shape derivative dX/ds (`shape`, as the full model's adjoint
+/// uses it, so that a parameter at a bound of its range needs no design outside it), or μ at
+/// fixed κ/μ. None for the pressure (which moves the load instead).
+fn rom_moved(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, name: &str, delta: f64, shape: &[(String, Vec<[f64; 3]>)]) -> Option<crate::scene::SceneModel> {
+    match name {
+        P_PRESSURE => None,
+        P_MU => {
+            let mut o = opts.clone();
+            let Material::NeoHookean(ref mut nh) = o.material else { return None };
+            let ratio = nh.kappa / nh.mu;
+            nh.mu += delta;
+            nh.kappa = ratio * nh.mu;
+            SceneModel::build(geom, &o, kind).ok()
+        }
+        _ => {
+            let dx = &shape.iter().find(|(n, _)| n == name)?.1;
+            let mut sm = SceneModel::build(geom, opts, kind).ok()?;
+            if dx.len() != sm.model.mesh.nodes.len() {
+                return None;
+            }
+            for (x, d) in sm.model.mesh.nodes.iter_mut().zip(dx) {
+                for c in 0..3 {
+                    x[c] += delta * d[c];
+                }
+            }
+            Some(sm)
+        }
+    }
+}
+
+/// [`scene_gradient`] on the reduced model (`opts.rom`): the reduced equilibrium at p (the same
+/// path follower), polished to 1e-10, and the sensitivities of every functional by the direct
+/// method on the reduced tangent ([`twistopt_solver::rom::RomPath::direct_sensitivity`]): for
+/// each input one residual pair at s ± h (the meshes of a design parameter ± h, μ ± h, or the
+/// load at p ± h) and one dense solve. With `limit_cap`, the limit pressure above p and its
+/// sensitivity dp_lim/ds = −φᵀ∂R/∂s / φᵀ∂R/∂p, φ the reduced tangent's null vector at the fold.
+fn rom_scene_gradient(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p_kpa: f64, rho: f64, limit_cap: Option<f64>) -> Result<SceneGradient, SceneError> {
+    let t0 = Instant::now();
+    let rom = opts.rom.clone().expect("rom_scene_gradient needs opts.rom");
+    let sm = SceneModel::build(geom, opts, kind)?;
+    let mut eq = equilibrium(&sm, opts, p_kpa, None);
+    let fset = functionals(&sm, rho);
+    let solver_f: Vec<Functional> = fset.iter().map(|f| f.1.clone()).collect();
+    fn rom_path<'a>(rom: &'a twistopt_solver::rom::Rom, m: &'a SceneModel, p: f64, f: &[Functional]) -> Result<twistopt_solver::rom::RomPath<'a>, SceneError> {
+        rom.path(&m.model, m.loads(0.0, 0.0), m.loads(p, 0.0), f.to_vec()).map_err(|e| SceneError::Initial(format!("reduced model: {e}")))
+    }
+    let (status, cause) = eq.end.clone().unwrap_or_else(|| (SceneStatus::Converged, String::new()));
+    let mut out = SceneGradient {
+        scene: kind.name().into(),
+        status,
+        cause,
+        p_kpa: eq.record.p_kpa,
+        values: BTreeMap::new(),
+        gradients: BTreeMap::new(),
+        max_radius_mm: eq.record.max_radius_mm,
+        ks_rho_per_mm: rho,
+        ks_gap_mm: f64::NAN,
+        min_det_f: eq.record.min_det_f,
+        dofs: sm.state_dim(opts),
+        p_limit_kpa: None,
+        p_limit_cause: None,
+        p_limit_gradient: BTreeMap::new(),
+        cost: Cost { newton_iterations: eq.newton_iterations, warm_started: false, path: eq.path.clone(), ..Default::default() },
+        q: Vec::new(),
+    };
+    let failed = |out: &mut SceneGradient, why: String| {
+        out.status = SceneStatus::GradientFailed;
+        out.cause = why;
+        out.ks_gap_mm = 0.0;
+    };
+    let p_state = eq.record.p_kpa;
+    if !(p_state > 0.0) {
+        failed(&mut out, "the reduced ramp did not leave the unloaded state".into());
+        return Ok(out);
+    }
+    let rp = rom_path(&rom, &sm, p_state, &solver_f)?;
+    // polish to 1e-10 (as the full model's gradient) and factor the reduced tangent there
+    let tight = NewtonOptions { rtol: opts.steps.newton.rtol.min(1e-10), ..opts.steps.newton.clone() };
+    if let Ok(s) = correct(&rp, &eq.q, 1.0, None, &tight, false, None, false) {
+        eq.newton_iterations += s.iterations;
+        out.cost.newton_iterations += s.iterations;
+        eq.q = s.q;
+    }
+    out.cost.forward_time_s = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let factor = match rp.tangent_factor(&eq.q, 1.0) {
+        Ok(f) => f,
+        Err(e) => {
+            failed(&mut out, format!("reduced tangent: {e}"));
+            return Ok(out);
+        }
+    };
+    let values = match rp.functional_values(&eq.q, 1.0) {
+        Ok(v) => v,
+        Err(e) => {
+            failed(&mut out, format!("reduced functionals: {e}"));
+            return Ok(out);
+        }
+    };
+    let inputs = rom_inputs(geom, opts, p_state);
+    let shape = mesh_shape_derivatives(geom, &sm.mesh.spec)?;
+    let mut grads: Vec<Vec<f64>> = vec![Vec::new(); fset.len()];
+    for (name, h) in &inputs {
+        let d = if name == P_PRESSURE {
+            let hl = h / p_state;
+            rp.direct_sensitivity(&eq.q, &factor, (&rp, 1.0 + hl), (&rp, 1.0 - hl), *h)
+        } else {
+            let (Some(mp), Some(mm)) = (rom_moved(geom, opts, kind, name, *h, &shape), rom_moved(geom, opts, kind, name, -*h, &shape)) else {
+                failed(&mut out, format!("the model at {name} ± {h:e} could not be built"));
+                return Ok(out);
+            };
+            let (pp, pm) = (rom_path(&rom, &mp, p_state, &solver_f)?, rom_path(&rom, &mm, p_state, &solver_f)?);
+            rp.direct_sensitivity(&eq.q, &factor, (&pp, 1.0), (&pm, 1.0), *h)
+        };
+        match d {
+            Ok((_, df)) => df.into_iter().enumerate().for_each(|(i, v)| grads[i].push(v)),
+            Err(e) => {
+                failed(&mut out, format!("reduced sensitivity to {name}: {e}"));
+                return Ok(out);
+            }
+        }
+    }
+    out.cost.dual_evaluations = 2 * inputs.len();
+    out.cost.adjoint_solves = inputs.len();
+    for (i, (name, _, scale)) in fset.iter().enumerate() {
+        out.values.insert(name.to_string(), values[i] * scale);
+        out.gradients.insert(name.to_string(), inputs.iter().zip(&grads[i]).map(|((n, _), g)| (n.clone(), g * scale)).collect());
+    }
+    if !out.values.values().chain(out.gradients.values().flat_map(|g| g.values())).all(|v| v.is_finite()) {
+        failed(&mut out, "a reduced value or gradient is not finite".into());
+        return Ok(out);
+    }
+    // the true max radius over the outer surface, for the KS gap
+    if let Ok((_, _, st, _, _)) = rp.evaluate(&eq.q, &rp.loads(1.0), false) {
+        let outer = sm.model.mesh.node_sets.get("outer").cloned().unwrap_or_else(|| (0..sm.model.mesh.nodes.len()).collect());
+        let x0 = &sm.model.mesh.nodes;
+        let outer_max = outer.iter().map(|&n| ((x0[n][0] + st.u[n][0]).powi(2) + (x0[n][1] + st.u[n][1]).powi(2)).sqrt()).fold(0.0, f64::max);
+        out.ks_gap_mm = out.values.get("max_radius_ks_mm").copied().unwrap_or(f64::NAN) - outer_max;
+    }
+    out.cost.gradient_time_s = t1.elapsed().as_secs_f64();
+    if let Some(cap) = limit_cap {
+        let t2 = Instant::now();
+        let cont = continue_to_failure(&sm, opts, &eq, cap);
+        out.cost.limit_newton_iterations = cont.newton_iterations();
+        out.cost.path.add(&cont.stats());
+        let lim = if eq.end.is_some() { Some(&eq) } else { cont.found() };
+        if let Some(l) = lim {
+            out.p_limit_kpa = Some(l.record.p_kpa);
+            out.p_limit_cause = l.end.as_ref().map(|e| e.0);
+            if let Some(g) = rom_limit_gradient(geom, opts, kind, &rom, &sm, l, &inputs, &shape) {
+                out.p_limit_gradient = g;
+            }
+        }
+        out.cost.limit_time_s = t2.elapsed().as_secs_f64();
+    }
+    out.q = eq.q;
+    Ok(out)
+}
+
+/// dp_lim/ds (kPa per unit of s) at a reduced limit state: −φᵀ∂R/∂s / φᵀ∂R/∂p with φ the
+/// eigenvector of the reduced tangent's eigenvalue nearest zero (a fold: K φ = 0, and the
+/// perturbed fold moves along p only to first order). None where it cannot be evaluated.
+fn rom_limit_gradient(
+    geom: &ActuatorGeometry,
+    opts: &SceneOptions,
+    kind: SceneKind,
+    rom: &twistopt_solver::rom::Rom,
+    sm: &SceneModel,
+    l: &crate::scene::Equilibrium,
+    inputs: &[(String, f64)],
+    shape: &[(String, Vec<[f64; 3]>)],
+) -> Option<BTreeMap<String, f64>> {
+    let p = l.record.p_kpa;
+    if !(p > 0.0) || l.q.len() != sm.state_dim(opts) {
+        return None;
+    }
+    fn rom_path<'a>(rom: &'a twistopt_solver::rom::Rom, m: &'a SceneModel, p: f64) -> Option<twistopt_solver::rom::RomPath<'a>> {
+        rom.path(&m.model, m.loads(0.0, 0.0), m.loads(p, 0.0), Vec::new()).ok()
+    }
+    let rp = rom_path(rom, sm, p)?;
+    let (_, phi) = rp.null_vector(&l.q, 1.0).ok()?;
+    let residual = |rp: &twistopt_solver::rom::RomPath, lam: f64| rp.evaluate(&l.q, &rp.loads(lam), false).ok().map(|e| e.0);
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    // φᵀ ∂R/∂p per kPa
+    let hp = 1e-6 * p;
+    let (rp_, rm_) = (residual(&rp, 1.0 + hp / p)?, residual(&rp, 1.0 - hp / p)?);
+    let dp: Vec<f64> = rp_.iter().zip(&rm_).map(|(a, b)| (a - b) / (2.0 * hp)).collect();
+    let denom = dot(&phi, &dp);
+    if !(denom.abs() > 0.0) {
+        return None;
+    }
+    let mut out = BTreeMap::new();
+    for (name, h) in inputs.iter().filter(|(n, _)| n != P_PRESSURE) {
+        let (mp, mm) = (rom_moved(geom, opts, kind, name, *h, shape)?, rom_moved(geom, opts, kind, name, -*h, shape)?);
+        let (pp, pm) = (rom_path(rom, &mp, p)?, rom_path(rom, &mm, p)?);
+        let (a, b) = (residual(&pp, 1.0)?, residual(&pm, 1.0)?);
+        let ds: Vec<f64> = a.iter().zip(&b).map(|(x, y)| (x - y) / (2.0 * h)).collect();
+        out.insert(name.clone(), -dot(&phi, &ds) / denom);
+    }
+    Some(out)
+}
+
 /// One component of a finite-difference check.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FdComponent {
@@ -340,6 +557,14 @@ fn scene_values(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, p
         return None;
     }
     let fset = functionals(&sm, rho);
+    if let Some(rom) = &opts.rom {
+        // the reduced equilibrium, polished as for the gradient, read through the same functionals
+        let rp = rom.path(&sm.model, sm.loads(0.0, 0.0), sm.loads(eq.record.p_kpa, 0.0), fset.iter().map(|f| f.1.clone()).collect()).ok()?;
+        let tight = NewtonOptions { rtol: opts.steps.newton.rtol.min(1e-12), ..opts.steps.newton.clone() };
+        let z = correct(&rp, &eq.q, 1.0, None, &tight, false, None, false).map(|s| s.q).unwrap_or(eq.q);
+        let v = rp.functional_values(&z, 1.0).ok()?;
+        return fset.iter().zip(v).map(|((n, _, s), v)| v.is_finite().then(|| (n.to_string(), v * s))).collect();
+    }
     let inp = adjoint::Inputs { x0: &sm.model.mesh.nodes, q: &eq.q, pressure: eq.loads.pressure, presc: &eq.loads.presc, params: &sm.model.params };
     let st = adjoint::evaluate(&sm.model, &inp, &eq.loads).ok()?;
     fset.iter().map(|(n, f, s)| f.eval(&sm.model, &st).ok().map(|v| (n.to_string(), v * s))).collect()

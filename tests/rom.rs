@@ -201,7 +201,8 @@ fn assert_tangent_is_central_difference(label: &str, k: impl std::ops::Index<(us
 
 /// `twistopt rom train` end to end on the coarse mesh: the model directory (manifest + basis),
 /// a resumed training that reads its cached ramps, an evaluation and a sweep at ROM fidelity
-/// (results say so), and the refusals (another mesh; gradient, which needs the reduced adjoint).
+/// (results say so), the reduced gradients against finite differences, the fallback, validation
+/// and calibration, and the refusals (another mesh, a design outside the box).
 #[test]
 fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     use std::process::Command;
@@ -292,16 +293,29 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     assert!(rf["scenes"]["free"]["rom_indicator"].is_null());
     let of = rf["omega_J_m3"].as_f64().unwrap();
     assert!((om - of).abs() <= 0.05 * of, "Ω reduced {om} vs full {of}");
-    // refusals: another mesh, and gradient (no reduced adjoint yet)
+    // refusals: another mesh, a design outside the training box
     let out = ev(&["--set", "fidelity.preset=\"default\""], "ev2");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("trained for another model"), "{}", String::from_utf8_lossy(&out.stderr));
     let out = ev(&["--set", "design.range=\"extended\"", "--set", "design.l_mm=9.5"], "ev3");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("outside the reduced model's training box"), "{}", String::from_utf8_lossy(&out.stderr));
-    let out = bin().args(["gradient", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--set", &rom_set, "--out"]).arg(dir.join("gr")).output().unwrap();
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("adjoint"), "{}", String::from_utf8_lossy(&out.stderr));
+    // gradient at ROM fidelity: the reduced sensitivities of every scene functional to r, l, α,
+    // p and μ equal central differences of the reduced model's re-solved equilibria
+    let out = bin()
+        .args(["gradient", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--set", &rom_set, "--pressure", "20", "--check-fd", "--fd-steps", "1e-4,1e-5", "--out"])
+        .arg(dir.join("gr"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let gr: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("gr/gradient.json")).unwrap()).unwrap();
+    assert_eq!(gr["model"]["model"], "reduced", "{}", gr["model"]);
+    for sc in ["free", "blocked"] {
+        assert_eq!(gr["scenes"][sc]["status"], "converged", "{}", gr["scenes"][sc]);
+        assert_eq!(gr["scenes"][sc]["gradients"]["cavity_volume_mm3"].as_object().unwrap().len(), 5, "r, l, α, p, μ");
+    }
+    let fd_err = gr["max_rel_error"].as_f64().unwrap();
+    assert!(fd_err < 1e-5, "reduced gradients vs finite differences: {fd_err:e}");
     // the fallback: a threshold of 0 sends both scenes back to the full model, which then
     // answers exactly as the full model does; a threshold no scene reaches keeps the reduced one
     let out = ev(&["--set", "fidelity.rom_fallback=0"], "fb");

@@ -1239,6 +1239,22 @@ impl<'a> RomPath<'a> {
         l
     }
 
+    /// The factor of the reduced tangent at (z, λ): Cholesky, or LU where it is indefinite.
+    pub fn tangent_factor(&self, z: &[f64], lam: f64) -> Result<DenseFactor, RomError> {
+        let k = self.evaluate(z, &self.loads(lam), true)?.1.ok_or(RomError::SingularTangent)?;
+        self.factor(&k, true).or_else(|_| self.factor(&k, false)).map_err(|_| RomError::SingularTangent)
+    }
+
+    /// The reduced tangent's eigenvalue nearest zero at (z, λ) and its unit eigenvector (at a
+    /// fold, the null vector).
+    pub fn null_vector(&self, z: &[f64], lam: f64) -> Result<(f64, Vec<f64>), RomError> {
+        let k = self.evaluate(z, &self.loads(lam), true)?.1.ok_or(RomError::SingularTangent)?;
+        let eig = k.as_ref().self_adjoint_eigen(Side::Lower).map_err(|_| RomError::SingularTangent)?;
+        let s = eig.S();
+        let j = (0..k.nrows()).min_by(|&a, &b| s[a].abs().total_cmp(&s[b].abs())).ok_or(RomError::SingularTangent)?;
+        Ok((s[j], (0..k.nrows()).map(|i| eig.U()[(i, j)]).collect()))
+    }
+
     /// The functionals' values at (z, λ) (NaN where one cannot be evaluated).
     pub fn functional_values(&self, z: &[f64], lam: f64) -> Result<Vec<f64>, ElementError> {
         let st = self.evaluate(z, &self.loads(lam), false)?.2;

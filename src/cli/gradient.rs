@@ -40,9 +40,6 @@ pub struct GradientArgs {
 pub fn run(args: &GradientArgs) -> Result<()> {
     let problem = Problem::load(&args.problem, &args.set)?;
     let v = problem.validate()?;
-    if v.rom.is_some() {
-        anyhow::bail!("fidelity.rom: `gradient` needs the reduced model's adjoint, which is not built yet; run it on the full model (drop fidelity.rom)");
-    }
     let p = match args.pressure {
         Some(p) => p,
         None => match &v.load {
@@ -71,6 +68,7 @@ pub fn run(args: &GradientArgs) -> Result<()> {
     let dg = design_gradient(&v.geometry, &opts, &v.scenes, p, args.ks_rho, None, None)?;
     let mut doc = serde_json::to_value(&dg)?;
     doc["fidelity"] = json!(v.mesh.size_string());
+    doc["model"] = crate::evaluate::fidelity_json(&v);
     doc["element"] = json!(format!("{:?}", opts.formulation.kind));
     doc["ks_rho_per_mm"] = json!(args.ks_rho);
     for (name, g) in &dg.scenes {

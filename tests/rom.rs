@@ -316,6 +316,25 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     }
     let fd_err = gr["max_rel_error"].as_f64().unwrap();
     assert!(fd_err < 1e-5, "reduced gradients vs finite differences: {fd_err:e}");
+    // the limit pressure's reduced sensitivity (null-vector formula) against central differences
+    // of the reduced model's limit pressures at l ± 2e-3 mm
+    {
+        use twistopt::problem::Problem;
+        let problem = Problem::load(std::path::Path::new("problems/energy-density.toml"), &["fidelity.preset=\"coarse\"".into(), rom_set.clone()]).unwrap();
+        let v = problem.validate().unwrap();
+        let o = problem.scene_options(&v);
+        assert!(o.rom.is_some());
+        let at = |l: f64| {
+            let g = ActuatorGeometry::new(&Design::new(12.0, l, 200.0), RangePolicy::TableI).unwrap();
+            twistopt::gradient::scene_gradient(&g, &o, SceneKind::Free, 20.0, 20.0, None, Some(150.0)).unwrap()
+        };
+        let base = at(14.0);
+        let pl = base.p_limit_kpa.expect("a pressure maximum below 150 kPa");
+        let d = base.p_limit_gradient["l_mm"];
+        let h = 2e-3;
+        let fd = (at(14.0 + h).p_limit_kpa.unwrap() - at(14.0 - h).p_limit_kpa.unwrap()) / (2.0 * h);
+        assert!((d - fd).abs() <= 1e-3 * fd.abs().max(1e-2), "dp_lim/dl at p_lim = {pl:.3} kPa: reduced {d} vs central difference {fd}");
+    }
     // the fallback: a threshold of 0 sends both scenes back to the full model, which then
     // answers exactly as the full model does; a threshold no scene reaches keeps the reduced one
     let out = ev(&["--set", "fidelity.rom_fallback=0"], "fb");

@@ -228,7 +228,14 @@ fn sweep_throughput_rom() {
             "rom_indicator": r.scenes.iter().map(|(k, s)| (k.clone(), json!(s.rom_indicator))).collect::<serde_json::Map<_, _>>()}));
     }
     let n = designs.len() as f64;
-    println!("sweep_throughput_rom (sweep preset, one thread): {:.2} s per design reduced vs {:.2} s full ({:.1}×); Table-I grid ≈ {:.1} h on 2 cores; {}", cpu_r / n, cpu_f / n, cpu_f / cpu_r, 39_864.0 * cpu_r / n / 2.0 / 3600.0, json!(designs));
+    println!(
+        "sweep_throughput_rom (sweep preset, one thread): {:.2} s per design reduced vs {:.2} s full ({:.1}×); Table-I grid ≈ {:.1} h on 2 cores; {}",
+        cpu_r / n,
+        cpu_f / n,
+        cpu_f / cpu_r,
+        39_864.0 * cpu_r / n / 2.0 / 3600.0,
+        json!(designs)
+    );
     merge(
         "sweep_throughput_rom",
         json!({

@@ -130,6 +130,9 @@ pub struct Stage {
     pub max_evaluations: usize,
     pub xtol_rel: f64,
     pub ftol_rel: f64,
+    /// the stage's reduced model (`rom = "DIR"`): the model, its training box and its fallback
+    /// threshold
+    pub rom: Option<(std::sync::Arc<twistopt_solver::rom::Rom>, Vec<crate::geometry::ParamSpec>, Option<f64>)>,
 }
 
 /// One FE evaluation in the optimiser's terms (minimisation, scaled variables).
@@ -296,6 +299,11 @@ impl OptProblem {
                 let mut p = self.clone();
                 p.opts.mesh = st.mesh;
                 p.opts.formulation = twistopt_solver::element::Formulation::standard(st.mesh.kind);
+                // a stage runs on its own reduced model or on the full one (a problem-level
+                // fidelity.rom is for another mesh)
+                p.opts.rom = st.rom.as_ref().map(|r| r.0.clone());
+                p.opts.rom_box = st.rom.as_ref().map(|r| r.1.clone()).unwrap_or_default();
+                p.opts.rom_fallback = st.rom.as_ref().and_then(|r| r.2);
                 p.max_evaluations = st.max_evaluations;
                 p.xtol_rel = st.xtol_rel;
                 p.ftol_rel = st.ftol_rel;
@@ -1112,7 +1120,19 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
                 bail!("optimise.stages[{k}].{key} = {t} must be in (0, 1)");
             }
         }
-        stages.push(Stage { label: st.preset.clone().or(st.mesh.clone()).unwrap_or_default(), mesh, max_evaluations: st.max_evaluations, xtol_rel, ftol_rel });
+        let rom = match &st.rom {
+            None => None,
+            Some(dir) => {
+                let mut so = problem.scene_options(v);
+                so.mesh = mesh;
+                so.formulation = twistopt_solver::element::Formulation::standard(mesh.kind);
+                let (r, m) = crate::rom::load(std::path::Path::new(dir), &so).map_err(|e| anyhow!("optimise.stages[{k}].rom: {e:#}"))?;
+                Some((std::sync::Arc::new(r), m.design_box.clone(), m.fallback_indicator))
+            }
+        };
+        let label = st.preset.clone().or(st.mesh.clone()).unwrap_or_default();
+        let label = if rom.is_some() { format!("{label} (reduced)") } else { label };
+        stages.push(Stage { label, mesh, max_evaluations: st.max_evaluations, xtol_rel, ftol_rel, rom });
     }
     let budget: usize = stages.iter().map(|s| s.max_evaluations).sum();
     if budget > sec.max_evaluations {

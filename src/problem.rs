@@ -134,6 +134,10 @@ pub struct StageSection {
     pub mesh: Option<String>,
     /// FE design evaluations of this stage
     pub max_evaluations: usize,
+    /// a reduced-order model directory trained for this stage's mesh (`twistopt rom train`):
+    /// the stage's evaluations and gradients run on it
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rom: Option<String>,
     /// this stage's stopping tolerances (default: optimise.xtol_rel / ftol_rel); an early,
     /// cheap stage need not converge tightly
     pub xtol_rel: Option<f64>,

@@ -316,6 +316,28 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     }
     let fd_err = gr["max_rel_error"].as_f64().unwrap();
     assert!(fd_err < 1e-5, "reduced gradients vs finite differences: {fd_err:e}");
+    // a staged optimisation whose first stage runs on the reduced model (its gradients), the
+    // second on the full model of the same mesh from the first stage's best design
+    let stages = format!("optimise.stages=[{{preset=\"coarse\", rom={}, max_evaluations=20}}, {{preset=\"coarse\", max_evaluations=20}}]", toml::Value::String(romdir.display().to_string()));
+    let out = bin()
+        .args(["optimise", "problems/max-torque.toml", "--set", "load.p_max_kPa=20", "--set", "optimise.variables=[\"alpha_deg\", \"l_mm\"]", "--set"])
+        .arg(if cfg!(feature = "nlopt") { "optimise.optimisers=[\"slsqp\"]" } else { "optimise.optimisers=[\"sqp\"]" })
+        .args(["--set", "optimise.starts=1", "--set", "optimise.max_evaluations=40", "--set", &stages, "--out"])
+        .arg(dir.join("opt"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let best: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("opt/best.json")).unwrap()).unwrap();
+    let run = &best["runs"][0];
+    assert!(run["status"].as_str().unwrap().contains("(reduced)"), "{run}");
+    let by_stage: Vec<u64> = run["evaluations_by_stage"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+    assert!(by_stage.len() == 2 && by_stage.iter().all(|n| *n >= 1), "{by_stage:?}");
+    let hist: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("opt/history.json")).unwrap()).unwrap();
+    let evs = hist["runs"][0]["evaluations"].as_array().unwrap();
+    let n0 = by_stage[0] as usize;
+    let stage0_best = evs[..n0].iter().filter(|e| e["feasible"] == true).map(|e| e["objective"].as_f64().unwrap()).fold(0.0, f64::max);
+    // the reduced stage's best and the full model's answer at the end agree within 5 %
+    assert!((best["objective"].as_f64().unwrap() - stage0_best).abs() <= 0.05 * stage0_best, "full {} vs reduced {stage0_best}", best["objective"]);
     // the limit pressure's reduced sensitivity (null-vector formula) against central differences
     // of the reduced model's limit pressures at l ± 2e-3 mm
     {

@@ -92,9 +92,6 @@ impl Selection {
 pub fn run(args: &OptimiseArgs) -> Result<()> {
     let problem = Problem::load(&args.problem, &args.set)?;
     let v = problem.validate()?;
-    if v.rom.is_some() {
-        anyhow::bail!("fidelity.rom: `optimise` needs the reduced model's adjoint, which is not built yet; run it on the full model (drop fidelity.rom)");
-    }
     let (op, sec) = build_problem(&problem, &v)?;
     let map = match &args.map {
         Some(m) => {

@@ -96,6 +96,37 @@ pub struct SceneGradient {
     pub q: Vec<f64>,
 }
 
+impl SceneGradient {
+    /// The result at an equilibrium, before its gradients: status, pressure, radius, work counts.
+    fn at(kind: SceneKind, eq: &crate::scene::Equilibrium, rho: f64, dofs: usize) -> SceneGradient {
+        let (status, cause) = eq.end.clone().unwrap_or_else(|| (SceneStatus::Converged, String::new()));
+        SceneGradient {
+            scene: kind.name().into(),
+            status,
+            cause,
+            p_kpa: eq.record.p_kpa,
+            values: BTreeMap::new(),
+            gradients: BTreeMap::new(),
+            max_radius_mm: eq.record.max_radius_mm,
+            ks_rho_per_mm: rho,
+            ks_gap_mm: f64::NAN,
+            min_det_f: eq.record.min_det_f,
+            dofs,
+            p_limit_kpa: None,
+            p_limit_cause: None,
+            p_limit_gradient: BTreeMap::new(),
+            cost: Cost { newton_iterations: eq.newton_iterations, warm_started: eq.warm_started, path: eq.path.clone(), ..Default::default() },
+            q: Vec::new(),
+        }
+    }
+    /// Mark the gradient as failed, with why.
+    fn fail(&mut self, why: String) {
+        self.status = SceneStatus::GradientFailed;
+        self.cause = why;
+        self.ks_gap_mm = 0.0;
+    }
+}
+
 /// The functionals of a scene: (name, solver functional, scale to the reported unit).
 fn functionals(sm: &SceneModel, rho: f64) -> Vec<(&'static str, Functional, f64)> {
     let m = sm.multiplicity;
@@ -143,32 +174,12 @@ pub fn scene_gradient(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneK
     }
     let forward_time_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let (status, cause) = eq.end.clone().unwrap_or_else(|| (SceneStatus::Converged, String::new()));
-    let mut out = SceneGradient {
-        scene: kind.name().into(),
-        status,
-        cause,
-        p_kpa: eq.record.p_kpa,
-        values: BTreeMap::new(),
-        gradients: BTreeMap::new(),
-        max_radius_mm: eq.record.max_radius_mm,
-        ks_rho_per_mm: rho,
-        ks_gap_mm: f64::NAN,
-        min_det_f: eq.record.min_det_f,
-        dofs: sm.model.n_reduced(),
-        p_limit_kpa: None,
-        p_limit_cause: None,
-        p_limit_gradient: BTreeMap::new(),
-        cost: Cost { newton_iterations: eq.newton_iterations, forward_time_s, warm_started: eq.warm_started, path: eq.path.clone(), ..Default::default() },
-        q: eq.q.clone(),
-    };
+    let mut out = SceneGradient::at(kind, &eq, rho, sm.model.n_reduced());
+    out.cost.forward_time_s = forward_time_s;
+    out.q = eq.q.clone();
     let fset = functionals(&sm, rho);
     let dirs = directions(geom, opts, &sm)?;
-    let failed = |out: &mut SceneGradient, why: String| {
-        out.status = SceneStatus::GradientFailed;
-        out.cause = why;
-        out.ks_gap_mm = 0.0;
-    };
+    let failed = SceneGradient::fail;
     let a = match sm.model.assemble(&eq.q, &eq.loads, false) {
         Ok(a) => a,
         Err(e) => {
@@ -299,30 +310,8 @@ fn rom_scene_gradient(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneK
     fn rom_path<'a>(rom: &'a twistopt_solver::rom::Rom, m: &'a SceneModel, p: f64, f: &[Functional]) -> Result<twistopt_solver::rom::RomPath<'a>, SceneError> {
         rom.path(&m.model, m.loads(0.0, 0.0), m.loads(p, 0.0), f.to_vec()).map_err(|e| SceneError::Initial(format!("reduced model: {e}")))
     }
-    let (status, cause) = eq.end.clone().unwrap_or_else(|| (SceneStatus::Converged, String::new()));
-    let mut out = SceneGradient {
-        scene: kind.name().into(),
-        status,
-        cause,
-        p_kpa: eq.record.p_kpa,
-        values: BTreeMap::new(),
-        gradients: BTreeMap::new(),
-        max_radius_mm: eq.record.max_radius_mm,
-        ks_rho_per_mm: rho,
-        ks_gap_mm: f64::NAN,
-        min_det_f: eq.record.min_det_f,
-        dofs: sm.state_dim(opts),
-        p_limit_kpa: None,
-        p_limit_cause: None,
-        p_limit_gradient: BTreeMap::new(),
-        cost: Cost { newton_iterations: eq.newton_iterations, warm_started: false, path: eq.path.clone(), ..Default::default() },
-        q: Vec::new(),
-    };
-    let failed = |out: &mut SceneGradient, why: String| {
-        out.status = SceneStatus::GradientFailed;
-        out.cause = why;
-        out.ks_gap_mm = 0.0;
-    };
+    let mut out = SceneGradient::at(kind, &eq, rho, sm.state_dim(opts));
+    let failed = SceneGradient::fail;
     let p_state = eq.record.p_kpa;
     if !(p_state > 0.0) {
         failed(&mut out, "the reduced ramp did not leave the unloaded state".into());

@@ -96,12 +96,19 @@ pub fn run(args: &RomArgs) -> Result<()> {
     }
 }
 
-fn train(a: &TrainArgs) -> Result<()> {
-    let problem = Problem::load(&a.problem, &a.set)?;
+/// The scene options of a problem file on the full model, without fields: what a reduced model
+/// is trained for and validated against.
+fn full_options(path: &std::path::Path, set: &[String]) -> Result<crate::scene::SceneOptions> {
+    let problem = Problem::load(path, set)?;
     let v = problem.validate()?;
     let mut opts = problem.scene_options(&v);
     opts.rom = None;
     opts.keep_fields = false;
+    Ok(opts)
+}
+
+fn train(a: &TrainArgs) -> Result<()> {
+    let opts = full_options(&a.problem, &a.set)?;
     if !(a.tau >= 0.0 && a.tau < 1.0) {
         anyhow::bail!("--tau {} must be in [0, 1)", a.tau);
     }
@@ -191,11 +198,7 @@ fn train(a: &TrainArgs) -> Result<()> {
 }
 
 fn validate(a: &ValidateArgs) -> Result<()> {
-    let problem = Problem::load(&a.problem, &a.set)?;
-    let v = problem.validate()?;
-    let mut opts = problem.scene_options(&v);
-    opts.rom = None;
-    opts.keep_fields = false;
+    let opts = full_options(&a.problem, &a.set)?;
     if a.designs == 0 {
         anyhow::bail!("--designs must be positive");
     }

@@ -58,7 +58,7 @@ fn main() {
     let t = TrainOptions {
         designs: ntrain,
         truncation: Truncation::Modes(kmax),
-        ecsw: EcswOptions { tau: 1.0, max_elements: 0, tangent_directions: 0 },
+        ecsw: EcswOptions { tau: 1.0, max_elements: 0, tangent_directions: 0, points: false, max_snapshots: 0 },
         frame: match std::env::var("FRAME").as_deref() {
             Ok("cartesian") => twistopt_solver::rom::Frame::Cartesian,
             Ok("cylindrical") => twistopt_solver::rom::Frame::Cylindrical,
@@ -100,7 +100,7 @@ fn main() {
         let kp = basis.pressure.as_ref().map_or(0, |p| p.kp);
         let sample = if tau > 0.0 {
             // ECSW for this basis on the training states
-            let e = EcswOptions { tau, max_elements: 100_000, tangent_directions: std::env::var("TANGENTS").ok().and_then(|s| s.parse().ok()).unwrap_or(0) };
+            let e = EcswOptions { tau, max_elements: 100_000, tangent_directions: std::env::var("TANGENTS").ok().and_then(|s| s.parse().ok()).unwrap_or(0), points: false, max_snapshots: 0 };
             let fit = twistopt::rom::fit_sample(&opts, &basis, &ramps, &e).unwrap();
             println!("ECSW k={k} kp={kp}: {} elements, residual {:.2e}", fit.sample.elements.len(), fit.residual);
             fit.sample

@@ -35,7 +35,7 @@ impl Default for TrainOptions {
             scenes: vec![SceneKind::Free, SceneKind::Blocked],
             p_max_kpa: 100.0,
             truncation: Truncation::Tail { tol: 1e-6, max: 60 },
-            ecsw: EcswOptions { tau: 0.01, max_elements: 400, tangent_directions: 2 },
+            ecsw: EcswOptions { tau: 0.01, max_elements: 400, tangent_directions: 2, points: false, max_snapshots: 0 },
             frame: Frame::Cylindrical,
             pressure_modes: Some(Truncation::Modes(10)),
         }
@@ -65,7 +65,11 @@ pub struct TrainReport {
     /// of the pressure snapshots (empty without a reduced pressure space)
     #[serde(default)]
     pub pressure_singular_values: Vec<f64>,
+    /// the sample's distinct elements
     pub sample_elements: usize,
+    /// its quadrature points (0: an element-level sample)
+    #[serde(default)]
+    pub sample_points: usize,
     pub elements: usize,
     pub ecsw_residual: f64,
     pub snapshot_time_s: f64,
@@ -207,10 +211,21 @@ pub fn fit_sample(opts: &SceneOptions, basis: &Basis, ramps: &[Ramp], ecsw: &Ecs
         return Ok(twistopt_solver::rom::EcswFit { sample: twistopt_solver::rom::Sample::all(elements), residual: 0.0, rows: 0 });
     }
     let mut acc = twistopt_solver::rom::EcswAccumulator::new(ecsw.tangent_directions);
+    acc.points = ecsw.points;
+    // with max_snapshots, every stride-th loaded state over all ramps
+    let loaded: usize = ramps.iter().map(|r| r.states.iter().filter(|s| s.0 != 0.0).count()).sum();
+    let stride = if ecsw.max_snapshots > 0 { loaded.div_ceil(ecsw.max_snapshots).max(1) } else { 1 };
+    let mut index = 0usize;
     for r in ramps {
         let geom = ActuatorGeometry::new(&r.design, RangePolicy::TableI)?;
         let sm = SceneModel::build(&geom, &full, r.kind)?;
-        let snaps: Vec<Snapshot> = r.states.iter().filter(|s| s.0 != 0.0).map(|s| Snapshot { model: &sm.model, q: s.1.clone(), presc: s.2.clone() }).collect();
+        let mut snaps: Vec<Snapshot> = Vec::new();
+        for s in r.states.iter().filter(|s| s.0 != 0.0) {
+            if index % stride == 0 {
+                snaps.push(Snapshot { model: &sm.model, q: s.1.clone(), presc: s.2.clone() });
+            }
+            index += 1;
+        }
         acc.add(basis, &snaps)?;
     }
     Ok(acc.fit(ecsw))
@@ -229,14 +244,13 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
     let t2 = Instant::now();
     let fit = fit_sample(opts, &basis, ramps, &t.ecsw)?;
     let ecsw_time_s = t2.elapsed().as_secs_f64();
-    let elements = fit.sample.elements.len();
     let n_elements = {
         let geom = ActuatorGeometry::new(&ramps[0].design, RangePolicy::TableI)?;
         let mut full = opts.clone();
         full.rom = None;
         SceneModel::build(&geom, &full, ramps[0].kind)?.model.mesh.n_elements()
     };
-    log(&format!("  ECSW: {} of {} elements, relative residual {:.2e} (τ = {})", elements, n_elements, fit.residual, t.ecsw.tau));
+    log(&format!("  ECSW: {}, relative residual {:.2e} (τ = {})", fit.sample.describe(n_elements), fit.residual, t.ecsw.tau));
     let mut designs: Vec<Design> = Vec::new();
     for r in ramps {
         if !designs.iter().any(|d| d.values == r.design.values) {
@@ -249,7 +263,8 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
         modes: basis.k,
         singular_values: basis.singular_values.clone(),
         pressure_singular_values: basis.pressure.as_ref().map(|p| p.singular_values.clone()).unwrap_or_default(),
-        sample_elements: fit.sample.elements.len(),
+        sample_elements: fit.sample.distinct_elements().len(),
+        sample_points: fit.sample.points.len(),
         elements: n_elements,
         ecsw_residual: fit.residual,
         snapshot_time_s: 0.0,
@@ -523,7 +538,7 @@ pub fn validate(opts: &SceneOptions, rom: std::sync::Arc<Rom>, count: usize, see
         .iter()
         .enumerate()
         .map(|(i, d)| {
-            let row = validation_row(opts, &rom, i, d, p_max_kpa)?;
+            let row = validation_row(opts, &rom, i, d, p_max_kpa, None)?;
             progress(&format!("validation {}: Ω full {:.3} reduced {:.3}", label(d), row["omega_full"].as_f64().unwrap_or(f64::NAN), row["omega_rom"].as_f64().unwrap_or(f64::NAN)));
             Ok(row)
         })
@@ -534,7 +549,11 @@ pub fn validate(opts: &SceneOptions, rom: std::sync::Arc<Rom>, count: usize, see
 /// One validation row: design `index` of the seeded set, full and reduced model, free + blocked
 /// ramped to `p_max_kpa` or failure, one scene at a time (the process CPU time is the design's;
 /// the models assemble in parallel themselves).
-pub fn validation_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usize, d: &Design, p_max_kpa: f64) -> Result<serde_json::Value> {
+///
+/// With `reuse`, an earlier validation row of the same index and design (of the same full model,
+/// problem and pressure bound; e.g. another reduced model's validation), the full-order answer
+/// is taken from it instead of being recomputed.
+pub fn validation_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usize, d: &Design, p_max_kpa: f64, reuse: Option<&serde_json::Value>) -> Result<serde_json::Value> {
     use crate::scene::run_pressure;
     let mut ro = opts.clone();
     ro.rom = Some(rom.clone());
@@ -549,18 +568,37 @@ pub fn validation_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usi
         let b = run_pressure(&g, o, SceneKind::Blocked, &[p_max_kpa])?;
         Ok((f, b, crate::evaluate::process_cpu_time_s() - c0))
     };
-    let (ff, fb, cf) = run(&full)?;
-    let (rf, rb, cr) = run(&ro)?;
     let end = |r: &crate::scene::SceneResult| r.steps.last().map(|s| s.p_kpa).unwrap_or(0.0);
-    let (of, _) = omega_of(&ff, &fb);
+    const FULL_KEYS: [&str; 5] = ["omega_full", "p_end_free_full", "p_end_blocked_full", "status_full", "cpu_s_full"];
+    let mut row = match reuse {
+        Some(prev) => {
+            if prev["index"].as_u64() != Some(index as u64) || prev["design"] != serde_json::to_value(d)? || FULL_KEYS.iter().any(|k| prev.get(k).is_none()) {
+                return Err(anyhow!("the reused full-order row of design {index} is of another design or incomplete"));
+            }
+            let mut row = serde_json::json!({ "index": index, "design": d, "full_reused": true });
+            for k in FULL_KEYS {
+                row[k] = prev[k].clone();
+            }
+            row
+        }
+        None => {
+            let (ff, fb, cf) = run(&full)?;
+            let (of, _) = omega_of(&ff, &fb);
+            serde_json::json!({
+                "index": index, "design": d, "omega_full": of, "p_end_free_full": end(&ff), "p_end_blocked_full": end(&fb),
+                "status_full": [ff.status.to_string(), fb.status.to_string()], "cpu_s_full": cf,
+            })
+        }
+    };
+    let (rf, rb, cr) = run(&ro)?;
     let (or, _) = omega_of(&rf, &rb);
-    Ok(serde_json::json!({
-        "index": index, "design": d, "omega_full": of, "omega_rom": or,
-        "p_end_free_full": end(&ff), "p_end_free_rom": end(&rf), "p_end_blocked_full": end(&fb), "p_end_blocked_rom": end(&rb),
-        "status_full": [ff.status.to_string(), fb.status.to_string()], "status_rom": [rf.status.to_string(), rb.status.to_string()],
-        "indicator_rom": [rf.rom_indicator, rb.rom_indicator],
-        "cpu_s_full": cf, "cpu_s_rom": cr,
-    }))
+    row["omega_rom"] = serde_json::json!(or);
+    row["p_end_free_rom"] = serde_json::json!(end(&rf));
+    row["p_end_blocked_rom"] = serde_json::json!(end(&rb));
+    row["status_rom"] = serde_json::json!([rf.status.to_string(), rb.status.to_string()]);
+    row["indicator_rom"] = serde_json::json!([rf.rom_indicator, rb.rom_indicator]);
+    row["cpu_s_rom"] = serde_json::json!(cr);
+    Ok(row)
 }
 
 /// The fallback threshold calibrated on validation rows ([`validation_row`]): a row is *bad*

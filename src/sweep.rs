@@ -411,15 +411,10 @@ impl SweepConfig {
     pub fn fidelity(&self) -> Result<String> {
         let v = self.problem.validate()?;
         Ok(match (&v.rom, &self.problem.fidelity.rom) {
-            (Some((rom, _)), Some(dir)) => {
-                format!(
-                    "{} {:?} rom:{dir} ({} modes, {} pressure modes, {} elements)",
-                    v.mesh.size_string(),
-                    v.mesh.kind,
-                    rom.basis.k,
-                    rom.basis.pressure.as_ref().map_or(0, |p| p.kp),
-                    rom.sample.elements.len()
-                )
+            (Some((rom, m)), Some(dir)) => {
+                // (element samples keep the string earlier sweeps recorded)
+                let sample = if rom.sample.is_points() { rom.sample.describe(m.report.elements) } else { format!("{} elements", rom.sample.elements.len()) };
+                format!("{} {:?} rom:{dir} ({} modes, {} pressure modes, {})", v.mesh.size_string(), v.mesh.kind, rom.basis.k, rom.basis.pressure.as_ref().map_or(0, |p| p.kp), sample)
             }
             _ => format!("{} {:?}", v.mesh.size_string(), v.mesh.kind),
         })

@@ -108,7 +108,7 @@ fn hyper_reduced_tangent_is_the_derivative_of_its_residual() {
     // every third element with weights 2.5–3.5
     let elements: Vec<usize> = (0..model.mesh.n_elements()).step_by(3).collect();
     let weights: Vec<f64> = elements.iter().map(|&e| 2.5 + (e % 5) as f64 * 0.25).collect();
-    let sample = Sample { elements, weights };
+    let sample = Sample { elements, weights, points: Vec::new() };
     let rp = RomPath::new(model, &basis, &sample, sm.loads(0.0, 0.0), sm.loads(30.0, 0.0), Vec::new()).unwrap();
     let m = rp.dim();
     let z: Vec<f64> = (0..m).map(|i| 0.04 * ((i * 37 % 11) as f64 / 11.0 - 0.4)).collect();
@@ -169,9 +169,68 @@ fn reduced_pressure_space_is_consistent() {
     small.pressure = Some(PressureBasis { np, kp, psi, singular_values: Vec::new() });
     let elements: Vec<usize> = (0..ne).step_by(2).collect();
     let weights = vec![2.0; elements.len()];
-    let s2 = Sample { elements, weights };
+    let s2 = Sample { elements, weights, points: Vec::new() };
     let k = eval(&small, &s2, &z, true).k.unwrap();
     assert_tangent_is_central_difference("reduced pressure", k, &z, |z| eval(&small, &s2, z, false).r);
+}
+
+/// A quadrature-level sample of every point at weight 1 is the element-level model with every
+/// element (residual, tangent, volume, outputs, reactions); a sparse point sample with uneven
+/// weights has a tangent that is the derivative of its residual (also on the rigid bodies'
+/// coordinates: the blocked scene), symmetric; without a pressure space it is refused.
+#[test]
+fn quadrature_level_sample_is_consistent() {
+    use twistopt_solver::rom::PressureBasis;
+    for kind in [SceneKind::Free, SceneKind::Blocked] {
+        let (sm, _) = scene(kind);
+        let model = &sm.model;
+        let ne = model.mesh.n_elements();
+        let ngp = model.form.rule().weights.len();
+        let np = 4;
+        let mut basis = random_basis(model.dofs.n_nodal(), 6, 5);
+        let n = ne * np;
+        let kp = 3;
+        let mut psi = vec![0.0; n * kp];
+        for e in 0..ne {
+            psi[(e * np) * kp] = 1.0;
+            psi[(e * np) * kp + 1] = (e as f64 * 0.3).sin();
+            psi[(e * np + 2) * kp + 2] = 0.7;
+        }
+        let plain = basis.clone();
+        basis.pressure = Some(PressureBasis { np, kp, psi, singular_values: Vec::new() });
+        let m = basis.k + model.n_reduced() - basis.n;
+        let z: Vec<f64> = (0..m).map(|i| 0.03 * ((i * 31 % 17) as f64 / 17.0 - 0.45)).collect();
+        fn path<'a>(sm: &'a SceneModel, basis: &'a Basis, s: &'a Sample) -> RomPath<'a> {
+            RomPath::new(&sm.model, basis, s, sm.loads(0.0, 0.0), sm.loads(30.0, 0.0), sm.functionals()).unwrap()
+        }
+        let (el, pt) = (Sample::all(ne), Sample::all_points(ne, ngp));
+        let (re, rpt) = (path(&sm, &basis, &el), path(&sm, &basis, &pt));
+        let (a, b) = (re.eval(&z, 0.6, true, None).unwrap(), rpt.eval(&z, 0.6, true, None).unwrap());
+        let rs = a.r.iter().map(|x| x.abs()).fold(0.0, f64::max);
+        for (i, (x, y)) in a.r.iter().zip(&b.r).enumerate() {
+            assert!((x - y).abs() <= 1e-10 * rs, "{kind:?} r[{i}]: elements {x} vs points {y}");
+        }
+        let (ka, kb) = (a.k.as_ref().unwrap(), b.k.as_ref().unwrap());
+        let ks = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| ka[(i, j)].abs()).fold(0.0, f64::max);
+        for i in 0..m {
+            for j in 0..m {
+                assert!((ka[(i, j)] - kb[(i, j)]).abs() <= 1e-10 * ks, "{kind:?} K[{i},{j}]: elements {} vs points {}", ka[(i, j)], kb[(i, j)]);
+            }
+        }
+        assert!((a.scale - b.scale).abs() <= 1e-10 * a.scale, "{kind:?} scale {} vs {}", a.scale, b.scale);
+        assert_eq!(a.control.as_ref().map(|c| c.0), b.control.as_ref().map(|c| c.0));
+        let (oa, ob) = (re.outputs(&z, 0.6, &a), rpt.outputs(&z, 0.6, &b));
+        for (x, y) in oa.iter().zip(&ob) {
+            assert!((x - y).abs() <= 1e-9 * x.abs().max(1e-9), "{kind:?} output: elements {x} vs points {y}");
+        }
+        // every 7th point, weights 5–9
+        let idx: Vec<usize> = (0..ne * ngp).step_by(7).collect();
+        let sparse = Sample { elements: idx.iter().map(|i| i / ngp).collect(), weights: idx.iter().map(|i| 5.0 + (i % 5) as f64).collect(), points: idx.iter().map(|i| i % ngp).collect() };
+        let rs_ = path(&sm, &basis, &sparse);
+        let k = rs_.eval(&z, 0.6, true, None).unwrap().k.unwrap();
+        assert_tangent_is_central_difference(&format!("{kind:?} points"), k, &z, |z| rs_.eval(z, 0.6, false, None).unwrap().r);
+        assert!(RomPath::new(model, &plain, &sparse, sm.loads(0.0, 0.0), sm.loads(30.0, 0.0), Vec::new()).is_err());
+    }
 }
 
 /// k equals the central difference (step 1e-6) of the residual at z, to 1e-6 of its largest
@@ -407,6 +466,74 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
         .output()
         .unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("another model, seed"), "{}", String::from_utf8_lossy(&out.stderr));
+    // a quadrature-level model on the same cached ramps: its sample is of points, it evaluates,
+    // and its validation reuses the element model's full-order rows (checked, marked)
+    let ptdir = dir.join("rom-points");
+    std::fs::create_dir_all(&ptdir).unwrap();
+    let copy = Command::new("cp").arg("-r").arg(romdir.join("ramps")).arg(&ptdir).status().unwrap();
+    assert!(copy.success());
+    let out = bin()
+        .args([
+            "rom",
+            "train",
+            "problems/energy-density.toml",
+            "--set",
+            "fidelity.preset=\"coarse\"",
+            "--designs",
+            "8",
+            "--modes",
+            "24",
+            "--pressure-modes",
+            "5",
+            "--tau",
+            "0.02",
+            "--points",
+            "--ecsw-snapshots",
+            "40",
+            "--out",
+        ])
+        .arg(&ptdir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(String::from_utf8_lossy(&out.stderr).matches(": cached").count(), 16);
+    let mp: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(ptdir.join("manifest.json")).unwrap()).unwrap();
+    let npts = mp["sample"]["points"].as_array().map_or(0, |a| a.len());
+    let all_points = mp["report"]["elements"].as_u64().unwrap() as usize * 27;
+    assert!(npts > 0 && npts < all_points, "{npts} of {all_points} points sampled");
+    assert_eq!(mp["report"]["sample_points"].as_u64(), Some(npts as u64));
+    let out = bin()
+        .args(["rom", "validate", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "2", "--seed", "3", "--full-from"])
+        .arg(vdir.join("rows.jsonl"))
+        .arg("--rom")
+        .arg(&ptdir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let prow: Vec<serde_json::Value> = std::fs::read_to_string(ptdir.join("validation-seed3/rows.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(prow.len(), 2);
+    for (a, b) in prow.iter().zip(&rows) {
+        assert_eq!(a["full_reused"], true, "{a}");
+        assert_eq!(a["omega_full"], b["omega_full"]);
+        // (this 8-design, 24-mode model is too coarse to be accurate: the points model is
+        // compared with the element model of the same basis, whose error it shares)
+        let om_r = a["omega_rom"].as_f64().unwrap();
+        assert!(om_r.is_finite() && om_r >= 0.0, "points model: Ω {om_r}");
+        for sc in ["free", "blocked"] {
+            let (pe, pp) = (b[format!("p_end_{sc}_rom")].as_f64().unwrap(), a[format!("p_end_{sc}_rom")].as_f64().unwrap());
+            assert!((pp - pe).abs() <= 0.05 * pe, "points model, {sc}: p_end {pp} vs the element model's {pe}");
+        }
+    }
+    // reusing rows of other designs is refused
+    let out = bin()
+        .args(["rom", "validate", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "2", "--seed", "5", "--full-from"])
+        .arg(vdir.join("rows.jsonl"))
+        .arg("--rom")
+        .arg(&ptdir)
+        .output()
+        .unwrap();
+    let bad: Vec<serde_json::Value> = std::fs::read_to_string(ptdir.join("validation-seed5/rows.jsonl")).unwrap_or_default().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(out.status.success() && bad.iter().all(|r| r["error"].as_str().is_some_and(|e| e.contains("another design"))), "{}", String::from_utf8_lossy(&out.stderr));
     // a sweep at ROM fidelity records it in its manifest, and its fallbacks in the summary
     let out =
         bin().args(["sweep", "problems/sweep-example.toml", "--set", "load.p_max_kPa=80", "--fidelity"]).arg(format!("rom:{}", romdir.display())).arg("--out").arg(dir.join("sw")).output().unwrap();

@@ -84,13 +84,17 @@ pub struct ElementInfo<D> {
     pub min_det_f: f64,
 }
 
-struct QpData<D> {
-    g: Vec<[D; 3]>, // ∇_X N_a
-    f: M3<D>,
-    finv: M3<D>,
-    j: D,
-    wj0: D,
-    q: [f64; 4],
+/// The kinematics at one quadrature point of an element.
+pub struct QpData<D> {
+    /// ∇_X N_a of each node
+    pub g: Vec<[D; 3]>,
+    pub f: M3<D>,
+    pub finv: M3<D>,
+    pub j: D,
+    /// quadrature weight × det(∂X/∂ξ)
+    pub wj0: D,
+    /// the pressure-space basis {1, ξ, η, ζ} at the point
+    pub q: [f64; 4],
 }
 
 fn qp_data<D: Scalar>(rule: &HexRule, gp: usize, x0: &[[D; 3]], u: &[[D; 3]], q: [f64; 4]) -> Result<QpData<D>, ElementError> {
@@ -196,7 +200,8 @@ fn project_field<M: Hyperelastic>(ps: PressureSpace, mat: &M, params: &[f64], qp
     (th, pt)
 }
 
-fn gather<D: Scalar>(form: &Formulation, rule: &HexRule, x0: &[[D; 3]], u: &[[D; 3]]) -> Result<Vec<QpData<D>>, ElementError> {
+/// The kinematics of an element at each of its quadrature points.
+pub fn gather<D: Scalar>(form: &Formulation, rule: &HexRule, x0: &[[D; 3]], u: &[[D; 3]]) -> Result<Vec<QpData<D>>, ElementError> {
     (0..rule.weights.len()).map(|gp| qp_data(rule, gp, x0, u, form.pressure.basis(rule.points[gp]))).collect()
 }
 
@@ -224,6 +229,52 @@ pub fn residual_with<D: Scalar, M: Hyperelastic>(
     given: GivenPressure,
     f_out: &mut [D],
 ) -> Result<ElementInfo<D>, ElementError> {
+    for v in f_out.iter_mut() {
+        *v = D::zero();
+    }
+    let info = residual_impl(form, rule, mat, params, x0, u, given, |_, i, v| f_out[i] += v)?;
+    if f_out.iter().any(|v| !v.re().is_finite()) {
+        return Err(ElementError::NonFinite(0));
+    }
+    Ok(info)
+}
+
+/// [`residual_with`] split by quadrature point: `f_out` (n_points × 3·nn, point-major) holds each
+/// point's contribution to the element force (their sum is `residual_with`'s).
+#[allow(clippy::too_many_arguments)]
+pub fn residual_points_with<M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[f64],
+    x0: &[[f64; 3]],
+    u: &[[f64; 3]],
+    given: GivenPressure,
+    f_out: &mut Vec<f64>,
+) -> Result<ElementInfo<f64>, ElementError> {
+    let nd = 3 * x0.len();
+    f_out.clear();
+    f_out.resize(nd * rule.weights.len(), 0.0);
+    let info = residual_impl(form, rule, mat, params, x0, u, given, |gi, i, v| f_out[gi * nd + i] += v)?;
+    if f_out.iter().any(|v| !v.is_finite()) {
+        return Err(ElementError::NonFinite(0));
+    }
+    Ok(info)
+}
+
+/// The element force, each quadrature point's contribution to component i passed to
+/// `sink(point, i, value)`.
+#[allow(clippy::too_many_arguments)]
+fn residual_impl<D: Scalar, M: Hyperelastic>(
+    form: &Formulation,
+    rule: &HexRule,
+    mat: &M,
+    params: &[D],
+    x0: &[[D; 3]],
+    u: &[[D; 3]],
+    given: GivenPressure,
+    mut sink: impl FnMut(usize, usize, D),
+) -> Result<ElementInfo<D>, ElementError> {
     let nn = x0.len();
     let qp = gather(form, rule, x0, u)?;
     let (theta, pt) = match given {
@@ -233,9 +284,6 @@ pub fn residual_with<D: Scalar, M: Hyperelastic>(
         }
         Some(pc) => (qp.iter().map(|d| d.j).collect(), qp.iter().map(|d| D::from(given_at(pc, &d.q))).collect()),
     };
-    for v in f_out.iter_mut() {
-        *v = D::zero();
-    }
     let mut energy = D::zero();
     let mut min_j = f64::INFINITY;
     for (gi, d) in qp.iter().enumerate() {
@@ -255,14 +303,54 @@ pub fn residual_with<D: Scalar, M: Hyperelastic>(
         for a in 0..nn {
             let ga = d.g[a];
             for i in 0..3 {
-                f_out[3 * a + i] += (p[i][0] * ga[0] + p[i][1] * ga[1] + p[i][2] * ga[2]) * d.wj0;
+                sink(gi, 3 * a + i, (p[i][0] * ga[0] + p[i][1] * ga[1] + p[i][2] * ga[2]) * d.wj0);
             }
         }
     }
-    if !energy.re().is_finite() || f_out.iter().any(|v| !v.re().is_finite()) {
+    if !energy.re().is_finite() {
         return Err(ElementError::NonFinite(0));
     }
     Ok(ElementInfo { energy, min_det_f: min_j })
+}
+
+/// The response at one quadrature point of deformation F (its inverse `fi`, J = det F) under a
+/// pressure field of value p there: the isochoric energy density W, the first Piola stress
+/// P = P_iso + p J F⁻ᵀ (P[i][J]) and the material-form tangent A = ∂P/∂F at fixed p
+/// (A[3i+J][3k+L]), with `pj_k` the p·J of its volumetric geometric term (p·J itself, or a
+/// linearised state's). The quadrature-level kernel of [`tangent_with`] and of reduced models
+/// that sample quadrature points.
+pub fn point_tangent<M: Hyperelastic>(mat: &M, params: &[f64], fm: &M3<f64>, fi: &M3<f64>, j: f64, p: f64, pj_k: f64) -> (f64, M3<f64>, [[f64; 9]; 9]) {
+    let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
+    let jm23 = j.powf(-2.0 / 3.0);
+    let i1b = jm23 * i1;
+    let [w, w1, w2] = mat.w_iso(params, i1b);
+    // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
+    let mut gb = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for cap in 0..3 {
+            gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
+        }
+    }
+    let mut a = [[0.0f64; 9]; 9];
+    for i in 0..3 {
+        for cj in 0..3 {
+            for k in 0..3 {
+                for cl in 0..3 {
+                    let dik = if i == k && cj == cl { 2.0 } else { 0.0 };
+                    let d2 = jm23 * (dik - (4.0 / 3.0) * (fm[i][cj] * fi[cl][k] + fm[k][cl] * fi[cj][i]) + (4.0 / 9.0) * i1 * fi[cj][i] * fi[cl][k] + (2.0 / 3.0) * i1 * fi[cj][k] * fi[cl][i]);
+                    // with the volumetric geometric term p̃J(g_a⊗g_b − g_b⊗g_a) in material form
+                    a[3 * i + cj][3 * k + cl] = w2 * gb[i][cj] * gb[k][cl] + w1 * d2 + pj_k * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
+                }
+            }
+        }
+    }
+    let mut pk = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for cap in 0..3 {
+            pk[i][cap] = w1 * gb[i][cap] + p * j * fi[cap][i];
+        }
+    }
+    (w, pk, a)
 }
 
 /// A given pressure's value at a quadrature point of basis values `q` (P0: the first only).
@@ -447,36 +535,12 @@ pub fn tangent_with<M: Hyperelastic>(
         }
         for (gi, d) in qp.iter().enumerate() {
             min_j = min_j.min(d.j).min(theta[gi]);
-            let fm = &d.f;
             let fi = &d.finv;
-            let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
-            let jm23 = d.j.powf(-2.0 / 3.0);
-            let i1b = jm23 * i1;
-            let [w, w1, w2] = mat.w_iso(params, i1b);
             let (uv, upp) = if given.is_some() { (0.0, 0.0) } else { (mat.u_vol(params, theta[gi])[0], mat.u_vol(params, theta_k[gi])[2]) };
-            energy += (w + uv) * d.wj0;
-            // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
-            let mut gb = [[0.0; 3]; 3];
-            for i in 0..3 {
-                for cap in 0..3 {
-                    gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
-                }
-            }
-            let mut a = [[0.0f64; 9]; 9];
-            for i in 0..3 {
-                for cj in 0..3 {
-                    for k in 0..3 {
-                        for cl in 0..3 {
-                            let dik = if i == k && cj == cl { 2.0 } else { 0.0 };
-                            let d2 = jm23 * (dik - (4.0 / 3.0) * (fm[i][cj] * fi[cl][k] + fm[k][cl] * fi[cj][i]) + (4.0 / 9.0) * i1 * fi[cj][i] * fi[cl][k] + (2.0 / 3.0) * i1 * fi[cj][k] * fi[cl][i]);
-                            a[3 * i + cj][3 * k + cl] = w2 * gb[i][cj] * gb[k][cl] + w1 * d2;
-                        }
-                    }
-                }
-            }
             let wj0 = d.wj0;
-            let pj = pt[gi] * d.j;
             let pj_k = pt_k[gi] * d.j;
+            let (w, pk, mut a) = point_tangent(mat, params, &d.f, fi, d.j, pt[gi], pj_k);
+            energy += (w + uv) * wj0;
             for b in 0..nn {
                 let gbv = d.g[b];
                 for i in 0..3 {
@@ -487,21 +551,17 @@ pub fn tangent_with<M: Hyperelastic>(
             for a_ in 0..nn {
                 let ga = d.g[a_];
                 for i in 0..3 {
-                    let piso = w1 * (gb[i][0] * ga[0] + gb[i][1] * ga[1] + gb[i][2] * ga[2]);
-                    f_out[3 * a_ + i] += (piso + pj * sg[a_][i]) * wj0;
+                    f_out[3 * a_ + i] += (pk[i][0] * ga[0] + pk[i][1] * ga[1] + pk[i][2] * ga[2]) * wj0;
                 }
             }
-            // fold the volumetric geometric term p̃J(g_a⊗g_b − g_b⊗g_a) (and, without projection,
-            // U''J² g_a⊗g_b) into the material-form tangent A
-            for i in 0..3 {
-                for cj in 0..3 {
-                    for k in 0..3 {
-                        for cl in 0..3 {
-                            let mut v = pj_k * (fi[cj][i] * fi[cl][k] - fi[cl][i] * fi[cj][k]);
-                            if np == 0 && given.is_none() {
-                                v += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
+            // without projection, fold U''J² g_a⊗g_b into the material-form tangent A
+            if np == 0 && given.is_none() {
+                for i in 0..3 {
+                    for cj in 0..3 {
+                        for k in 0..3 {
+                            for cl in 0..3 {
+                                a[3 * i + cj][3 * k + cl] += upp * d.j * d.j * fi[cj][i] * fi[cl][k];
                             }
-                            a[3 * i + cj][3 * k + cl] += v;
                         }
                     }
                 }

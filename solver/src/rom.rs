@@ -65,6 +65,12 @@ pub enum RomError {
     SensitivityDims(usize, usize, usize),
     #[error("sensitivity: the reduced tangent's factor cannot be solved with (singular)")]
     SingularTangent,
+    #[error("a quadrature-level sample needs a reduced pressure space (an element's own pressure is condensed over all its points)")]
+    PointsWithoutPressure,
+    #[error("sample entry {0}: quadrature point {1}, but the element rule has {2}")]
+    SamplePoint(usize, usize, usize),
+    #[error("the quadrature-level ECSW fit does not take tangent directions")]
+    PointsWithTangents,
 }
 
 /// How many POD modes to keep.
@@ -237,17 +243,44 @@ impl Basis {
     }
 }
 
-/// The ECSW element sample: elements and their non-negative weights.
+/// The ECSW sample: elements and their non-negative weights, or (with `points`) quadrature
+/// points: entry i is then point `points[i]` of element `elements[i]` (an element may appear once
+/// per sampled point) with weight `weights[i]`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Sample {
     pub elements: Vec<usize>,
     pub weights: Vec<f64>,
+    /// the quadrature point of each entry (empty: whole elements)
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub points: Vec<usize>,
 }
 
 impl Sample {
     /// Every element with weight 1 (no hyper-reduction).
     pub fn all(n_elements: usize) -> Sample {
-        Sample { elements: (0..n_elements).collect(), weights: vec![1.0; n_elements] }
+        Sample { elements: (0..n_elements).collect(), weights: vec![1.0; n_elements], points: Vec::new() }
+    }
+    /// Every quadrature point of every element with weight 1 (the same reduced model as [`Sample::all`]).
+    pub fn all_points(n_elements: usize, points_per_element: usize) -> Sample {
+        let n = n_elements * points_per_element;
+        Sample { elements: (0..n).map(|i| i / points_per_element).collect(), weights: vec![1.0; n], points: (0..n).map(|i| i % points_per_element).collect() }
+    }
+    /// A quadrature-level sample.
+    pub fn is_points(&self) -> bool {
+        !self.points.is_empty()
+    }
+    /// "140 of 256 elements", or "745 quadrature points in 224 of 256 elements".
+    pub fn describe(&self, n_elements: usize) -> String {
+        if self.is_points() {
+            format!("{} quadrature points in {} of {} elements", self.points.len(), self.distinct_elements().len(), n_elements)
+        } else {
+            format!("{} of {} elements", self.elements.len(), n_elements)
+        }
+    }
+    /// The distinct elements of the sample, in order of first appearance.
+    pub fn distinct_elements(&self) -> Vec<usize> {
+        let mut seen = std::collections::HashSet::new();
+        self.elements.iter().copied().filter(|e| seen.insert(*e)).collect()
     }
 }
 
@@ -446,8 +479,11 @@ impl<'a> Reduction<'a> {
     }
     /// q(z).
     pub fn lift(&self, z: &[f64]) -> Vec<f64> {
-        let k = self.basis.k;
-        let mut q: Vec<f64> = (0..self.basis.n).map(|i| self.phi_row(i).iter().zip(&z[..k]).map(|(v, x)| v * x).sum()).collect();
+        let (n, k) = (self.basis.n, self.basis.k);
+        let mut q = vec![0.0; n];
+        let phi = faer::MatRef::from_row_major_slice(&self.phi, n, k);
+        let zm = faer::MatRef::from_column_major_slice(&z[..k], k, 1);
+        faer::linalg::matmul::matmul(faer::MatMut::from_column_major_slice_mut(&mut q, n, 1), faer::Accum::Replace, phi, zm, 1.0, faer::Par::Seq);
         q.extend_from_slice(&z[k..]);
         q
     }
@@ -547,6 +583,14 @@ pub struct EcswOptions {
     /// that the sample reproduces the stiffness (limit points) and not only the forces.
     #[serde(default)]
     pub tangent_directions: usize,
+    /// Sample quadrature points instead of whole elements (needs a reduced pressure space): the
+    /// candidates are every point of every element, each with its own weight.
+    #[serde(default)]
+    pub points: bool,
+    /// Fit on at most this many snapshots, evenly spaced (0: all; applied by the caller that
+    /// feeds the accumulator).
+    #[serde(default)]
+    pub max_snapshots: usize,
 }
 
 /// The result of an ECSW fit.
@@ -567,6 +611,7 @@ pub struct EcswFit {
 /// models (designs) need not be held at once.
 pub fn ecsw(basis: &Basis, snapshots: &[Snapshot], opts: &EcswOptions) -> Result<EcswFit, RomError> {
     let mut acc = EcswAccumulator::new(opts.tangent_directions);
+    acc.points = opts.points;
     acc.add(basis, snapshots)?;
     Ok(acc.fit(opts))
 }
@@ -576,6 +621,10 @@ pub fn ecsw(basis: &Basis, snapshots: &[Snapshot], opts: &EcswOptions) -> Result
 pub struct EcswAccumulator {
     /// tangent directions per snapshot (see [`EcswOptions::tangent_directions`])
     pub tangent_directions: usize,
+    /// candidates are quadrature points (see [`EcswOptions::points`])
+    pub points: bool,
+    /// quadrature points per element (with `points`)
+    points_per_element: usize,
     a: Option<Mat<f64>>,
     c: Vec<f64>,
     bb: f64,
@@ -591,24 +640,35 @@ impl EcswAccumulator {
     pub fn add(&mut self, basis: &Basis, snapshots: &[Snapshot]) -> Result<(), RomError> {
         use rayon::prelude::*;
         let Some(first) = snapshots.first() else { return Ok(()) };
-        let ne = first.model.mesh.n_elements();
+        if self.points && self.tangent_directions > 0 {
+            return Err(RomError::PointsWithTangents);
+        }
+        let ngp = first.model.form.rule().weights.len();
+        self.points_per_element = ngp;
+        let ncand = first.model.mesh.n_elements() * if self.points { ngp } else { 1 };
         let nt = self.tangent_directions;
-        let blocks: Vec<Result<(Mat<f64>, Vec<f64>, f64, usize), RomError>> = snapshots.par_iter().map(|s| snapshot_rows(basis, s, nt)).collect();
-        for blk in blocks {
-            let (g, cs, b2, r) = blk?;
-            let a = self.a.get_or_insert_with(|| Mat::<f64>::zeros(ne, ne));
-            if a.nrows() != g.nrows() {
-                return Err(RomError::SampleElement(g.nrows(), a.nrows()));
+        let points = self.points;
+        // a few snapshots at a time: each block is rows × candidates
+        for chunk in snapshots.chunks(16) {
+            let blocks: Vec<Result<(Mat<f64>, Vec<f64>), RomError>> = chunk.par_iter().map(|s| snapshot_rows(basis, s, nt, points)).collect();
+            for blk in blocks {
+                let (g, bs) = blk?;
+                let a = self.a.get_or_insert_with(|| Mat::<f64>::zeros(ncand, ncand));
+                if a.nrows() != g.ncols() {
+                    return Err(RomError::SampleElement(g.ncols(), a.nrows()));
+                }
+                faer::linalg::matmul::matmul(a.as_mut(), faer::Accum::Add, g.transpose(), g.as_ref(), 1.0, faer::Par::rayon(0));
+                if self.c.is_empty() {
+                    self.c = vec![0.0; ncand];
+                }
+                let bm = faer::MatRef::from_column_major_slice(&bs, bs.len(), 1);
+                let gb = g.transpose() * bm;
+                for (j, x) in self.c.iter_mut().enumerate() {
+                    *x += gb[(j, 0)];
+                }
+                self.bb += bs.iter().map(|x| x * x).sum::<f64>();
+                self.rows += g.nrows();
             }
-            *a += &g;
-            if self.c.is_empty() {
-                self.c = vec![0.0; ne];
-            }
-            for (x, y) in self.c.iter_mut().zip(&cs) {
-                *x += y;
-            }
-            self.bb += b2;
-            self.rows += r;
         }
         Ok(())
     }
@@ -616,26 +676,32 @@ impl EcswAccumulator {
     /// The weights by the τ-stopped NNLS.
     pub fn fit(&self, opts: &EcswOptions) -> EcswFit {
         let Some(a) = &self.a else {
-            return EcswFit { sample: Sample { elements: Vec::new(), weights: Vec::new() }, residual: 1.0, rows: 0 };
+            return EcswFit { sample: Sample { elements: Vec::new(), weights: Vec::new(), points: Vec::new() }, residual: 1.0, rows: 0 };
         };
         let (xi, res) = nnls_gram(a, &self.c, self.bb, opts.tau, opts.max_elements);
-        let mut elements = Vec::new();
-        let mut weights = Vec::new();
-        for (e, &w) in xi.iter().enumerate() {
+        let mut sample = Sample { elements: Vec::new(), weights: Vec::new(), points: Vec::new() };
+        for (col, &w) in xi.iter().enumerate() {
             if w > 0.0 {
-                elements.push(e);
-                weights.push(w);
+                if self.points {
+                    sample.elements.push(col / self.points_per_element);
+                    sample.points.push(col % self.points_per_element);
+                } else {
+                    sample.elements.push(col);
+                }
+                sample.weights.push(w);
             }
         }
-        EcswFit { sample: Sample { elements, weights }, residual: res, rows: self.rows }
+        EcswFit { sample, residual: res, rows: self.rows }
     }
 }
 
-/// One snapshot's scaled rows of G as their Gram contribution: (GᵀG, Gᵀb, bᵀb, rows). The
-/// rows are the element's reduced force on the modes and on every rigid-body DOF, then (with
-/// `tangent_dirs`) its reduced tangent times fixed pseudo-random unit directions; each block is
-/// scaled by the norm of its sum over the elements.
-fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Mat<f64>, Vec<f64>, f64, usize), RomError> {
+/// One snapshot's scaled rows of G and of b = G 1: columns are the candidates (elements, or
+/// with `points` each element's quadrature points, element-major). The rows are the candidate's
+/// reduced force on the modes and on every rigid-body DOF, then (with a pressure space) its
+/// dilatation-change moments on the pressure modes, then (with `tangent_dirs`, elements only)
+/// its reduced tangent times fixed pseudo-random unit directions; each block is scaled by the
+/// norm of its sum over the candidates.
+fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize, points: bool) -> Result<(Mat<f64>, Vec<f64>), RomError> {
     let ne = s.model.mesh.n_elements();
     let red = Reduction::new(s.model, basis)?;
     let q = red.lift(&red.project(&s.q));
@@ -644,6 +710,12 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
     let nb = s.model.dofs.bodies.len();
     let m = red.dim();
     let rule = s.model.form.rule();
+    let ngp = rule.weights.len();
+    if points && basis.pressure.is_none() {
+        return Err(RomError::PointsWithoutPressure);
+    }
+    let per = if points { ngp } else { 1 };
+    let ncand = ne * per;
     // a reduced pressure space: the elements' forces under the reduced pressure (all elements),
     // and their dilatation-change moments on the pressure modes as a block of rows of their own
     let all = Sample::all(ne);
@@ -651,7 +723,8 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
     let pressure = match &mixed {
         Some((pb, mx)) => {
             let (mut energy, mut min_det) = (0.0, f64::INFINITY);
-            Some(reduced_pressure(s.model, &rule, &all, mx, pb, &u, &mut energy, &mut min_det)?.0)
+            let mom = element_moments(s.model, &rule, &all, &u, &mut min_det)?;
+            Some(reduced_pressure(s.model, &all, mx, pb, &mom, &mut energy, &mut min_det)?.0)
         }
         None => None,
     };
@@ -659,7 +732,7 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
     let nforce = basis.k + 6 * nb;
     let nf = nforce + kp;
     let rows = nf + tangent_dirs * m;
-    let mut g = Mat::<f64>::zeros(rows, ne);
+    let mut g = Mat::<f64>::zeros(rows, ncand);
     let mut scratch = Vec::new();
     let mut jac = Vec::new();
     let mut bf = vec![0.0; 6 * nb];
@@ -680,42 +753,60 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
     let nn = s.model.mesh.kind.nodes_per_element();
     let nd = 3 * nn;
     let mut ke = vec![0.0; if tangent_dirs > 0 { nd * nd } else { 0 }];
+    let mut f = vec![0.0; nd * per];
     for e in 0..ne {
         let conn = s.model.mesh.element(e);
         let xe: Vec<[f64; 3]> = conn.iter().map(|&n| s.model.mesh.nodes[n]).collect();
         let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
-        let mut f = vec![0.0; nd];
         let given = pressure.as_ref().map(|p| &p[e][..]);
-        if tangent_dirs > 0 {
-            element::tangent_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, None, given, &mut f, &mut ke, None)
+        let relabel = |err| crate::model::relabel(err, e);
+        if points {
+            element::residual_points_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, given, &mut f).map_err(relabel)?;
+        } else if tangent_dirs > 0 {
+            element::tangent_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, None, given, &mut f, &mut ke, None).map_err(relabel)?;
         } else {
-            element::residual_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, given, &mut f)
+            element::residual_with(&s.model.form, &rule, &s.model.material, &s.model.params, &xe, &ue, given, &mut f).map_err(relabel)?;
         }
-        .map_err(|err| crate::model::relabel(err, e))?;
         if let Some((pb, _)) = &mixed {
-            let zero = vec![[0.0; 3]; xe.len()];
-            let b1 = element::dilatation_moments(&s.model.form, &rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?.0;
-            let b0 = element::dilatation_moments(&s.model.form, &rule, &xe, &zero).map_err(|err| crate::model::relabel(err, e))?.0;
             let pe = pb.block(e);
-            for r in 0..pb.np {
-                let d = b1[r] - b0[r];
-                for j in 0..kp {
-                    g[(nforce + j, e)] += pe[r * kp + j] * d;
+            if points {
+                // each point's φ_r (J − 1) w det J₀
+                for (gp, d) in element::gather(&s.model.form, &rule, &xe, &ue).map_err(relabel)?.iter().enumerate() {
+                    for r in 0..pb.np {
+                        let dv = d.q[r] * (d.j - 1.0) * d.wj0;
+                        for j in 0..kp {
+                            g[(nforce + j, e * per + gp)] += pe[r * kp + j] * dv;
+                        }
+                    }
+                }
+            } else {
+                let zero = vec![[0.0; 3]; xe.len()];
+                let b1 = element::dilatation_moments(&s.model.form, &rule, &xe, &ue).map_err(relabel)?.0;
+                let b0 = element::dilatation_moments(&s.model.form, &rule, &xe, &zero).map_err(relabel)?.0;
+                for r in 0..pb.np {
+                    let d = b1[r] - b0[r];
+                    for j in 0..kp {
+                        g[(nforce + j, e)] += pe[r * kp + j] * d;
+                    }
                 }
             }
         }
         red.jacobian(conn, &kin, &mut scratch, &mut jac);
-        for (r, fr) in f.iter().enumerate() {
-            if *fr != 0.0 {
-                for j in 0..basis.k {
-                    g[(j, e)] += jac[r * m + j] * fr;
+        for c in 0..per {
+            let col = e * per + c;
+            let fc = &f[c * nd..(c + 1) * nd];
+            for (r, fr) in fc.iter().enumerate() {
+                if *fr != 0.0 {
+                    for j in 0..basis.k {
+                        g[(j, col)] += jac[r * m + j] * fr;
+                    }
                 }
             }
-        }
-        bf.iter_mut().for_each(|v| *v = 0.0);
-        body_forces_of(s.model, &kin, conn, &f, 1.0, &mut bf);
-        for (j, v) in bf.iter().enumerate() {
-            g[(basis.k + j, e)] = *v;
+            bf.iter_mut().for_each(|v| *v = 0.0);
+            body_forces_of(s.model, &kin, conn, fc, 1.0, &mut bf);
+            for (j, v) in bf.iter().enumerate() {
+                g[(basis.k + j, col)] = *v;
+            }
         }
         if tangent_dirs > 0 {
             let jm = faer::MatRef::from_row_major_slice(&jac, nd, m);
@@ -728,7 +819,7 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
             }
         }
     }
-    let b: Vec<f64> = (0..rows).map(|i| (0..ne).map(|e| g[(i, e)]).sum()).collect();
+    let b: Vec<f64> = (0..rows).map(|i| (0..ncand).map(|e| g[(i, e)]).sum()).collect();
     // block scales: forces, dilatation moments, then each tangent direction
     let mut blocks = vec![(0, nforce)];
     if kp > 0 {
@@ -741,15 +832,12 @@ fn snapshot_rows(basis: &Basis, s: &Snapshot, tangent_dirs: usize) -> Result<(Ma
         let sc = if n > 0.0 { 1.0 / n } else { 1.0 };
         for i in lo..hi {
             bs[i] *= sc;
-            for j in 0..ne {
+            for j in 0..ncand {
                 g[(i, j)] *= sc;
             }
         }
     }
-    let gram = g.transpose() * &g;
-    let c: Vec<f64> = (0..ne).map(|j| (0..rows).map(|i| g[(i, j)] * bs[i]).sum()).collect();
-    let bb = bs.iter().map(|x| x * x).sum::<f64>();
-    Ok((gram, c, bb, rows))
+    Ok((g, bs))
 }
 
 /// Lawson–Hanson NNLS on the normal equations: min ½ξᵀAξ − cᵀξ (A = GᵀG, c = Gᵀb, bb = bᵀb),
@@ -762,14 +850,11 @@ pub fn nnls_gram(a: &Mat<f64>, c: &[f64], bb: f64, tau: f64, max_active: usize) 
     let resid = |x: &[f64]| {
         let mut ax = 0.0;
         let mut cx = 0.0;
-        for i in 0..n {
-            if x[i] != 0.0 {
-                cx += c[i] * x[i];
-                for j in 0..n {
-                    if x[j] != 0.0 {
-                        ax += x[i] * a[(i, j)] * x[j];
-                    }
-                }
+        let nz: Vec<usize> = (0..n).filter(|&i| x[i] != 0.0).collect();
+        for &i in &nz {
+            cx += c[i] * x[i];
+            for &j in &nz {
+                ax += x[i] * a[(i, j)] * x[j];
             }
         }
         ((bb - 2.0 * cx + ax).max(0.0) / bb.max(1e-300)).sqrt()
@@ -792,8 +877,17 @@ pub fn nnls_gram(a: &Mat<f64>, c: &[f64], bb: f64, tau: f64, max_active: usize) 
             break;
         }
         // gradient of the objective's negative: w = c − A x
-        let w: Vec<f64> = (0..n).map(|i| c[i] - (0..n).filter(|&j| x[j] != 0.0).map(|j| a[(i, j)] * x[j]).sum::<f64>()).collect();
-        let cand = (0..n).filter(|i| !active.contains(i)).max_by(|&i, &j| w[i].total_cmp(&w[j]));
+        let mut w = c.to_vec();
+        for &j in &active {
+            if x[j] != 0.0 {
+                let col = a.col(j);
+                for (i, wi) in w.iter_mut().enumerate() {
+                    *wi -= col[i] * x[j];
+                }
+            }
+        }
+        let is_active: std::collections::HashSet<usize> = active.iter().copied().collect();
+        let cand = (0..n).filter(|i| !is_active.contains(i)).max_by(|&i, &j| w[i].total_cmp(&w[j]));
         let Some(j) = cand.filter(|&j| w[j] > 0.0) else { break };
         active.push(j);
         // inner loop: keep the active least-squares solution feasible
@@ -821,12 +915,12 @@ pub fn nnls_gram(a: &Mat<f64>, c: &[f64], bb: f64, tau: f64, max_active: usize) 
             for (&i, &v) in active.iter().zip(&z) {
                 x[i] += alpha * (v - x[i]);
             }
-            active.retain(|&i| x[i] > 1e-14);
-            for i in 0..n {
-                if !active.contains(&i) {
+            for &i in &active {
+                if x[i] <= 1e-14 {
                     x[i] = 0.0;
                 }
             }
+            active.retain(|&i| x[i] > 0.0);
             if active.is_empty() {
                 break;
             }
@@ -857,6 +951,71 @@ pub struct RomPath<'a> {
     /// the state of the last tangent evaluation (z, λ), which `outputs` reads instead of
     /// evaluating again
     last: std::sync::Mutex<Option<(Vec<f64>, f64, RomState)>>,
+    /// the element of each element item of `jac_const` (the sample's distinct elements)
+    elem_items: Vec<usize>,
+    /// a quadrature-level sample's per-design data
+    points: Option<PointSample>,
+}
+
+/// K += α A B where A B is symmetric: only its lower triangle is computed, into the lower
+/// triangle of K (mirrored by [`mirror_lower`] once every such term is in).
+fn lower_product(k: &mut Mat<f64>, a: faer::MatRef<'_, f64>, b: faer::MatRef<'_, f64>, alpha: f64) {
+    use faer::linalg::matmul::triangular::{matmul, BlockStructure};
+    matmul(k.as_mut(), BlockStructure::TriangularLower, faer::Accum::Add, a, BlockStructure::Rectangular, b, BlockStructure::Rectangular, alpha, faer::Par::Seq);
+}
+
+/// K += L + Lᵀ − diag(L) for L holding lower-triangle terms only.
+fn mirror_lower(k: &mut Mat<f64>, l: &Mat<f64>) {
+    for j in 0..l.ncols() {
+        for i in j..l.nrows() {
+            let v = l[(i, j)];
+            k[(i, j)] += v;
+            if i != j {
+                k[(j, i)] += v;
+            }
+        }
+    }
+}
+
+thread_local! {
+    /// the quadrature-level evaluation's A G and state-dependent G blocks
+    static POINT_BUFFERS: std::cell::RefCell<(Vec<f64>, Vec<f64>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// The per-design data of a quadrature-level sample: for each entry, its element item (index
+/// into `elem_items`), ∇_X N_a at the point, w·det J₀ and the pressure-basis values; and
+/// G = ∂F/∂z (9 × m, F row-major: row 3i + J is ∂F_iJ/∂z) of the entries whose element's J does
+/// not depend on the state, stacked in `order`'s first `n_const` entries.
+struct PointSample {
+    item: Vec<usize>,
+    grad: Vec<Vec<[f64; 3]>>,
+    wj0: Vec<f64>,
+    phi: Vec<[f64; 4]>,
+    /// entries whose element has a rigid-body component (their nodal forces feed reactions)
+    rigid: Vec<bool>,
+    /// evaluation order: constant-G entries, then the others (grouped by element)
+    order: Vec<usize>,
+    n_const: usize,
+    /// G of order[..n_const], stacked (9·n_const × m, row-major)
+    g_const: Vec<f64>,
+}
+
+/// G = ∂F/∂z (9 × m, row-major) at a point of gradients `grad` from its element's
+/// J = ∂u_e/∂z (3nn × m, row-major), into `out`.
+fn point_g(grad: &[[f64; 3]], jac: &[f64], m: usize, out: &mut [f64]) {
+    out.iter_mut().for_each(|v| *v = 0.0);
+    for (a, ga) in grad.iter().enumerate() {
+        for i in 0..3 {
+            let row = &jac[(3 * a + i) * m..(3 * a + i + 1) * m];
+            for cj in 0..3 {
+                let o = &mut out[(3 * i + cj) * m..(3 * i + cj + 1) * m];
+                let c = ga[cj];
+                for (x, y) in o.iter_mut().zip(row) {
+                    *x += c * y;
+                }
+            }
+        }
+    }
 }
 
 /// State-independent data of a reduced pressure space on one geometry and sample: for each
@@ -879,9 +1038,15 @@ impl Mixed {
         let kp = pb.kp;
         let mut quad = Vec::with_capacity(sample.elements.len());
         let mut mr = Mat::<f64>::zeros(kp, kp);
-        for (&e, &w) in sample.elements.iter().zip(&sample.weights) {
+        for (i, (&e, &w)) in sample.elements.iter().zip(&sample.weights).enumerate() {
             let xe = model.mesh.element_coords(e);
-            let qd = element::pressure_quadrature(&model.form, rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
+            let mut qd = element::pressure_quadrature(&model.form, rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
+            if let Some(&gp) = sample.points.get(i) {
+                if gp >= qd.len() {
+                    return Err(RomError::SamplePoint(i, gp, qd.len()));
+                }
+                qd = vec![qd[gp]];
+            }
             let mut me = vec![0.0; np * np];
             for (phi, wj) in &qd {
                 for r in 0..np {
@@ -930,12 +1095,23 @@ impl<'a> RomPath<'a> {
             return Err(RomError::SampleElement(e, ne));
         }
         let rule = model.form.rule();
+        if sample.is_points() {
+            if basis.pressure.is_none() {
+                return Err(RomError::PointsWithoutPressure);
+            }
+            if sample.points.len() != sample.elements.len() || sample.weights.len() != sample.elements.len() {
+                return Err(RomError::SamplePoint(sample.points.len(), sample.elements.len(), rule.weights.len()));
+            }
+            if let Some((i, &gp)) = sample.points.iter().enumerate().find(|(_, &gp)| gp >= rule.weights.len()) {
+                return Err(RomError::SamplePoint(i, gp, rule.weights.len()));
+            }
+        }
         let mixed = basis.pressure.as_ref().map(|pb| Mixed::new(model, pb, sample, &rule)).transpose()?;
         let linear = |nodes: &[usize]| nodes.iter().all(|&n| (0..3).all(|c| matches!(model.dofs.comps[3 * n + c], Comp::Free(_) | Comp::Presc(_) | Comp::Lin(..))));
         let mut scratch = Vec::new();
         let mut jac_const = Vec::new();
-        let items =
-            sample.elements.iter().map(|&e| model.mesh.element(e)).chain(model.cavity.iter().flat_map(|c| c.face_nodes.iter().map(|v| v.as_slice()).chain(c.edges.iter().map(|e| e.0.as_slice()))));
+        let elem_items = if sample.is_points() { sample.distinct_elements() } else { sample.elements.clone() };
+        let items = elem_items.iter().map(|&e| model.mesh.element(e)).chain(model.cavity.iter().flat_map(|c| c.face_nodes.iter().map(|v| v.as_slice()).chain(c.edges.iter().map(|e| e.0.as_slice()))));
         for nodes in items {
             jac_const.push(linear(nodes).then(|| {
                 let mut j = Vec::new();
@@ -943,7 +1119,38 @@ impl<'a> RomPath<'a> {
                 j
             }));
         }
-        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed, jac_const, last: Default::default() })
+        let points = if sample.is_points() {
+            let m = red.dim();
+            let pos: std::collections::HashMap<usize, usize> = elem_items.iter().enumerate().map(|(i, &e)| (e, i)).collect();
+            let (mut item, mut grad, mut wj0, mut phi, mut rigid) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            let zero = vec![[0.0; 3]; model.mesh.kind.nodes_per_element()];
+            let mut data: std::collections::HashMap<usize, Vec<element::QpData<f64>>> = std::collections::HashMap::new();
+            for (&e, &gp) in sample.elements.iter().zip(&sample.points) {
+                if let std::collections::hash_map::Entry::Vacant(v) = data.entry(e) {
+                    let xe = model.mesh.element_coords(e);
+                    v.insert(element::gather(&model.form, &rule, &xe, &zero).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?);
+                }
+                let d = &data[&e][gp];
+                item.push(pos[&e]);
+                grad.push(d.g.clone());
+                wj0.push(d.wj0);
+                phi.push(d.q);
+                rigid.push(model.mesh.element(e).iter().any(|&n| (0..3).any(|c| matches!(model.dofs.comps[3 * n + c], Comp::Rigid(_)))));
+            }
+            let mut order: Vec<usize> = (0..item.len()).filter(|&i| jac_const[item[i]].is_some()).collect();
+            let n_const = order.len();
+            let mut dynamic: Vec<usize> = (0..item.len()).filter(|&i| jac_const[item[i]].is_none()).collect();
+            dynamic.sort_by_key(|&i| item[i]);
+            order.extend(dynamic);
+            let mut g_const = vec![0.0; 9 * n_const * m];
+            for (slot, &i) in order[..n_const].iter().enumerate() {
+                point_g(&grad[i], jac_const[item[i]].as_deref().unwrap_or(&[]), m, &mut g_const[9 * slot * m..9 * (slot + 1) * m]);
+            }
+            Some(PointSample { item, grad, wj0, phi, rigid, order, n_const, g_const })
+        } else {
+            None
+        };
+        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed, jac_const, last: Default::default(), elem_items, points })
     }
 
     /// J of item `i` (see `jac_const`): the cached one, or built into `buf`.
@@ -977,65 +1184,11 @@ impl<'a> RomPath<'a> {
         let mut scale_sq = 0.0;
         let mut scratch = Vec::new();
         let mut jac = Vec::new();
-        let nn = model.mesh.kind.nodes_per_element();
-        let nd = 3 * nn;
-        let mut f = vec![0.0; nd];
-        let mut ke = vec![0.0; if want_k { nd * nd } else { 0 }];
-        // a reduced pressure space: project J, then U'(θ), on it (the volumetric energy, the
-        // element pressures, and the low-rank volumetric stiffness B_rᵀ M⁻¹ H M⁻¹ B_r)
-        let pressure = match (&self.mixed, &self.red.basis.pressure) {
-            (Some(mx), Some(pb)) => Some(reduced_pressure(model, &self.rule, self.sample, mx, pb, &u, &mut energy, &mut min_det).map(|(a, b, _)| (a, b))?),
-            _ => None,
-        };
-        let kp = self.red.basis.pressure.as_ref().map_or(0, |p| p.kp);
-        let mut b_red = (want_k && pressure.is_some()).then(|| Mat::<f64>::zeros(kp, m));
-        let mut bv = Vec::new();
-        // products into reused buffers, sequentially (faer's operators use the global
-        // parallelism, whose dispatch costs more than these small products)
-        let mut kj = Mat::<f64>::zeros(nd, m);
-        let mut re = Mat::<f64>::zeros(m, 1);
-        for (s_i, (&e, &w)) in self.sample.elements.iter().zip(&self.sample.weights).enumerate() {
-            let conn = model.mesh.element(e);
-            let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
-            let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
-            let given = pressure.as_ref().map(|p| &p.0[s_i][..]);
-            let info = if want_k {
-                element::tangent_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, None, given, &mut f, &mut ke, given.map(|_| &mut bv))
-            } else {
-                element::residual_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, given, &mut f)
-            }
-            .map_err(|err| crate::model::relabel(err, e))?;
-            energy += w * info.energy;
-            min_det = min_det.min(info.min_det_f);
-            let jac = self.item_jacobian(s_i, conn, &kin, &mut scratch, &mut jac);
-            let jm = faer::MatRef::from_row_major_slice(jac, nd, m);
-            let fm = faer::MatRef::from_column_major_slice(&f, nd, 1);
-            faer::linalg::matmul::matmul(re.as_mut(), faer::Accum::Replace, jm.transpose(), fm, 1.0, faer::Par::Seq);
-            let mut re2 = 0.0;
-            for i in 0..m {
-                r[i] += w * re[(i, 0)];
-                re2 += re[(i, 0)] * re[(i, 0)];
-            }
-            scale_sq += w * re2;
-            add_body_nodal(model, conn, &f, w, &mut r_body);
-            if let Some(kz) = kz.as_mut() {
-                let km = faer::MatRef::from_row_major_slice(&ke, nd, nd);
-                faer::linalg::matmul::matmul(kj.as_mut(), faer::Accum::Replace, km, jm, 1.0, faer::Par::Seq);
-                faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, jm.transpose(), kj.as_ref(), w, faer::Par::Seq);
-            }
-            if let (Some(br), Some(pb)) = (b_red.as_mut(), &self.red.basis.pressure) {
-                // B_r += w Ψ_eᵀ (Bv_e J_e)
-                let np = pb.np;
-                let bvm = faer::MatRef::from_row_major_slice(&bv, np, nd);
-                let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
-                let mut bj = Mat::<f64>::zeros(np, m);
-                faer::linalg::matmul::matmul(bj.as_mut(), faer::Accum::Replace, bvm, jm, 1.0, faer::Par::Seq);
-                faer::linalg::matmul::matmul(br.as_mut(), faer::Accum::Add, pe.transpose(), bj.as_ref(), w, faer::Par::Seq);
-            }
-        }
-        if let (Some(kz), Some(br), Some((_, h)), Some(mx)) = (kz.as_mut(), b_red.as_ref(), pressure.as_ref(), self.mixed.as_ref()) {
-            let c = &mx.mass_inv * h * &mx.mass_inv;
-            faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, br.transpose(), (&c * br).as_ref(), 1.0, faer::Par::Seq);
+        // the symmetric products' lower triangles (mirrored into kz at the end)
+        let mut kl = want_k.then(|| Mat::<f64>::zeros(m, m));
+        match &self.points {
+            Some(ps) => self.internal_points(ps, &u, &kin, &mut r, kz.as_mut().zip(kl.as_mut()), &mut r_body, &mut energy, &mut min_det, &mut scale_sq)?,
+            None => self.internal_elements(&u, &kin, &mut r, kz.as_mut(), &mut r_body, &mut energy, &mut min_det, &mut scale_sq)?,
         }
         // cavity: exact volume, −p ∂V/∂z and −p ∂²V/∂z² over every face and boundary edge
         let mut volume = 0.0;
@@ -1047,7 +1200,7 @@ impl<'a> RomPath<'a> {
             let mut h = Vec::new();
             let mut gz = Mat::<f64>::zeros(m, 1);
             let mut hj = Mat::<f64>::zeros(0, 0);
-            let n_sampled = self.sample.elements.len();
+            let n_sampled = self.elem_items.len();
             for (c_i, (nodes, is_face)) in items.enumerate() {
                 let xs: Vec<[f64; 3]> = nodes.iter().map(|&n| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]]).collect();
                 let ml = 3 * xs.len();
@@ -1064,7 +1217,7 @@ impl<'a> RomPath<'a> {
                 }
                 if p != 0.0 {
                     add_body_nodal(model, nodes, &g, -p, &mut r_body);
-                    if let Some(kz) = kz.as_mut() {
+                    if let Some(kl) = kl.as_mut() {
                         h.clear();
                         h.resize(ml * ml, 0.0);
                         if is_face {
@@ -1077,7 +1230,7 @@ impl<'a> RomPath<'a> {
                             hj = Mat::<f64>::zeros(ml, m);
                         }
                         faer::linalg::matmul::matmul(hj.as_mut(), faer::Accum::Replace, hm, jm, 1.0, faer::Par::Seq);
-                        faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, jm.transpose(), hj.as_ref(), -p, faer::Par::Seq);
+                        lower_product(kl, jm.transpose(), hj.as_ref(), -p);
                     }
                 }
             }
@@ -1149,11 +1302,284 @@ impl<'a> RomPath<'a> {
                 }
             }
         }
+        if let (Some(kz), Some(kl)) = (kz.as_mut(), kl.as_ref()) {
+            mirror_lower(kz, kl);
+        }
         if !r.iter().all(|v| v.is_finite()) || kz.as_ref().is_some_and(|k| !(0..m).all(|j| (0..m).all(|i| k[(i, j)].is_finite()))) {
             return Err(ElementError::NonFinite(usize::MAX));
         }
         let scale = scale_sq.sqrt().max(p.abs() * dvol.iter().map(|x| x * x).sum::<f64>().sqrt());
         Ok((r, kz, RomState { q, u, kin, r_body, volume, dvol, energy }, scale, min_det))
+    }
+
+    /// The sampled elements' internal forces (and tangent) in reduced coordinates, with the
+    /// reduced pressure space's volumetric terms, added into r (kz, r_body, energy, min_det,
+    /// scale_sq).
+    #[allow(clippy::too_many_arguments)]
+    fn internal_elements(
+        &self,
+        u: &[[f64; 3]],
+        kin: &[BodyKin],
+        r: &mut [f64],
+        mut kz: Option<&mut Mat<f64>>,
+        r_body: &mut [f64],
+        energy: &mut f64,
+        min_det: &mut f64,
+        scale_sq: &mut f64,
+    ) -> Result<(), ElementError> {
+        let model = self.red.model;
+        let x0 = &model.mesh.nodes;
+        let m = self.red.dim();
+        let want_k = kz.is_some();
+        let mut scratch = Vec::new();
+        let mut jac = Vec::new();
+        let nn = model.mesh.kind.nodes_per_element();
+        let nd = 3 * nn;
+        let mut f = vec![0.0; nd];
+        let mut ke = vec![0.0; if want_k { nd * nd } else { 0 }];
+        // a reduced pressure space: project J, then U'(θ), on it (the volumetric energy, the
+        // element pressures, and the low-rank volumetric stiffness B_rᵀ M⁻¹ H M⁻¹ B_r)
+        let pressure = match (&self.mixed, &self.red.basis.pressure) {
+            (Some(mx), Some(pb)) => {
+                let mom = element_moments(model, &self.rule, self.sample, u, min_det)?;
+                Some(reduced_pressure(model, self.sample, mx, pb, &mom, energy, min_det).map(|(a, b, _)| (a, b))?)
+            }
+            _ => None,
+        };
+        let kp = self.red.basis.pressure.as_ref().map_or(0, |p| p.kp);
+        let mut b_red = (want_k && pressure.is_some()).then(|| Mat::<f64>::zeros(kp, m));
+        let mut bv = Vec::new();
+        // products into reused buffers, sequentially (faer's operators use the global
+        // parallelism, whose dispatch costs more than these small products)
+        let mut kj = Mat::<f64>::zeros(nd, m);
+        let mut re = Mat::<f64>::zeros(m, 1);
+        for (s_i, (&e, &w)) in self.sample.elements.iter().zip(&self.sample.weights).enumerate() {
+            let conn = model.mesh.element(e);
+            let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
+            let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
+            let given = pressure.as_ref().map(|p| &p.0[s_i][..]);
+            let info = if want_k {
+                element::tangent_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, None, given, &mut f, &mut ke, given.map(|_| &mut bv))
+            } else {
+                element::residual_with(&model.form, &self.rule, &model.material, &model.params, &xe, &ue, given, &mut f)
+            }
+            .map_err(|err| crate::model::relabel(err, e))?;
+            *energy += w * info.energy;
+            *min_det = min_det.min(info.min_det_f);
+            let jac = self.item_jacobian(s_i, conn, kin, &mut scratch, &mut jac);
+            let jm = faer::MatRef::from_row_major_slice(jac, nd, m);
+            let fm = faer::MatRef::from_column_major_slice(&f, nd, 1);
+            faer::linalg::matmul::matmul(re.as_mut(), faer::Accum::Replace, jm.transpose(), fm, 1.0, faer::Par::Seq);
+            let mut re2 = 0.0;
+            for i in 0..m {
+                r[i] += w * re[(i, 0)];
+                re2 += re[(i, 0)] * re[(i, 0)];
+            }
+            *scale_sq += w * re2;
+            add_body_nodal(model, conn, &f, w, r_body);
+            if let Some(kz) = kz.as_mut() {
+                let km = faer::MatRef::from_row_major_slice(&ke, nd, nd);
+                faer::linalg::matmul::matmul(kj.as_mut(), faer::Accum::Replace, km, jm, 1.0, faer::Par::Seq);
+                faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, jm.transpose(), kj.as_ref(), w, faer::Par::Seq);
+            }
+            if let (Some(br), Some(pb)) = (b_red.as_mut(), &self.red.basis.pressure) {
+                // B_r += w Ψ_eᵀ (Bv_e J_e)
+                let np = pb.np;
+                let bvm = faer::MatRef::from_row_major_slice(&bv, np, nd);
+                let pe = faer::MatRef::from_row_major_slice(pb.block(e), np, kp);
+                let mut bj = Mat::<f64>::zeros(np, m);
+                faer::linalg::matmul::matmul(bj.as_mut(), faer::Accum::Replace, bvm, jm, 1.0, faer::Par::Seq);
+                faer::linalg::matmul::matmul(br.as_mut(), faer::Accum::Add, pe.transpose(), bj.as_ref(), w, faer::Par::Seq);
+            }
+        }
+        if let (Some(kz), Some(br), Some((_, h)), Some(mx)) = (kz.as_mut(), b_red.as_ref(), pressure.as_ref(), self.mixed.as_ref()) {
+            let c = &mx.mass_inv * h * &mx.mass_inv;
+            faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, br.transpose(), (&c * br).as_ref(), 1.0, faer::Par::Seq);
+        }
+        Ok(())
+    }
+
+    /// [`RomPath::internal_elements`] for a quadrature-level sample: at each sampled point
+    /// F = I + Σ u_a ⊗ ∇N_a, P and A = ∂P/∂F under the reduced pressure, the reduced force
+    /// w Gᵀ P and tangent w Gᵀ A G (one product over all points), G = ∂F/∂z precomputed per
+    /// design where it does not depend on the state.
+    #[allow(clippy::too_many_arguments)]
+    fn internal_points(
+        &self,
+        ps: &PointSample,
+        u: &[[f64; 3]],
+        kin: &[BodyKin],
+        r: &mut [f64],
+        kz: Option<(&mut Mat<f64>, &mut Mat<f64>)>,
+        r_body: &mut [f64],
+        energy: &mut f64,
+        min_det: &mut f64,
+        scale_sq: &mut f64,
+    ) -> Result<(), ElementError> {
+        let _ftz = crate::fpenv::FlushDenormals::new();
+        let model = self.red.model;
+        let m = self.red.dim();
+        let n = ps.item.len();
+        let (Some(mx), Some(pb)) = (&self.mixed, &self.red.basis.pressure) else {
+            // (refused by `RomPath::new`)
+            return Err(ElementError::NonFinite(usize::MAX));
+        };
+        let (np, kp) = (pb.np, pb.kp);
+        // kinematics and dilatation moments at every sampled point
+        let mut kinem = Vec::with_capacity(n);
+        let mut moments = Vec::with_capacity(n);
+        for i in 0..n {
+            let (f, j) = self.point_f(ps, i, u)?;
+            *min_det = min_det.min(j);
+            kinem.push((f, crate::scalar::inv3(&f, j), j));
+            moments.push((0..np).map(|rr| ps.phi[i][rr] * j * ps.wj0[i]).collect::<Vec<f64>>());
+        }
+        let (pcs, h, _) = reduced_pressure(model, self.sample, mx, pb, &moments, energy, min_det)?;
+        let want_k = kz.is_some();
+        // row-major 9 × m blocks: A G of every point, G of the state-dependent ones
+        // (reused per thread: fresh multi-megabyte buffers cost page faults at every evaluation;
+        // every entry used is overwritten below)
+        let (mut ag, mut g_dyn) = POINT_BUFFERS.with(|b| std::mem::take(&mut *b.borrow_mut()));
+        ag.resize(if want_k { 9 * n * m } else { 0 }, 0.0);
+        g_dyn.resize(9 * (n - ps.n_const) * m, 0.0);
+        let mut b_red = Mat::<f64>::zeros(if want_k { kp } else { 0 }, m);
+        let mut scratch = Vec::new();
+        let mut jac = Vec::new();
+        let mut jac_item = usize::MAX;
+        let nd = 3 * model.mesh.kind.nodes_per_element();
+        let mut fnod = vec![0.0; nd];
+        let mut c = vec![0.0; m];
+        let mut dj = vec![0.0; m];
+        // per element item: the sum of its points' weighted reduced forces and their weight
+        let mut groups: std::collections::HashMap<usize, (Vec<f64>, f64)> = std::collections::HashMap::new();
+        let ngp = self.rule.weights.len() as f64;
+        let axpy = |o: &mut [f64], c: f64, x: &[f64]| {
+            for (a, b) in o.iter_mut().zip(x) {
+                *a += c * b;
+            }
+        };
+        for (slot, &i) in ps.order.iter().enumerate() {
+            let e = self.elem_items[ps.item[i]];
+            let conn = model.mesh.element(e);
+            let g: &[f64] = if slot < ps.n_const {
+                &ps.g_const[9 * slot * m..9 * (slot + 1) * m]
+            } else {
+                if jac_item != ps.item[i] {
+                    self.red.jacobian(conn, kin, &mut scratch, &mut jac);
+                    jac_item = ps.item[i];
+                }
+                let d = slot - ps.n_const;
+                point_g(&ps.grad[i], &jac, m, &mut g_dyn[9 * d * m..9 * (d + 1) * m]);
+                &g_dyn[9 * d * m..9 * (d + 1) * m]
+            };
+            let grow = |rr: usize| &g[rr * m..(rr + 1) * m];
+            let (f, fi, j) = &kinem[i];
+            let p: f64 = pcs[i].iter().zip(&ps.phi[i]).map(|(a, b)| a * b).sum();
+            let (wiso, pk, a) = element::point_tangent(&model.material, &model.params, f, fi, *j, p, p * j);
+            let w = self.sample.weights[i];
+            let wj0 = ps.wj0[i];
+            *energy += w * wj0 * wiso;
+            let pf = [pk[0][0], pk[0][1], pk[0][2], pk[1][0], pk[1][1], pk[1][2], pk[2][0], pk[2][1], pk[2][2]];
+            c.iter_mut().for_each(|v| *v = 0.0);
+            for (rr, &pv) in pf.iter().enumerate() {
+                axpy(&mut c, pv * wj0 * w, grow(rr));
+            }
+            let grp = groups.entry(ps.item[i]).or_insert_with(|| (vec![0.0; m], 0.0));
+            axpy(r, 1.0, &c);
+            axpy(&mut grp.0, 1.0, &c);
+            grp.1 += w;
+            if ps.rigid[i] {
+                for (a_, ga) in ps.grad[i].iter().enumerate() {
+                    for ci in 0..3 {
+                        fnod[3 * a_ + ci] = wj0 * (pk[ci][0] * ga[0] + pk[ci][1] * ga[1] + pk[ci][2] * ga[2]);
+                    }
+                }
+                add_body_nodal(model, conn, &fnod, w, r_body);
+            }
+            if want_k {
+                let wt = w * wj0;
+                let out = &mut ag[9 * slot * m..9 * (slot + 1) * m];
+                for (rr, arow) in a.iter().enumerate() {
+                    let o = &mut out[rr * m..(rr + 1) * m];
+                    let a0 = wt * arow[0];
+                    for (x, y) in o.iter_mut().zip(grow(0)) {
+                        *x = a0 * y;
+                    }
+                    for (ss, &av) in arow.iter().enumerate().skip(1) {
+                        if av != 0.0 {
+                            axpy(o, wt * av, grow(ss));
+                        }
+                    }
+                }
+                // ∂J/∂z = J F⁻ᵀ : G (F⁻ᵀ[i][J] = F⁻¹[J][i])
+                let fv = [fi[0][0], fi[1][0], fi[2][0], fi[0][1], fi[1][1], fi[2][1], fi[0][2], fi[1][2], fi[2][2]];
+                dj.iter_mut().for_each(|v| *v = 0.0);
+                for (rr, &fvv) in fv.iter().enumerate() {
+                    axpy(&mut dj, j * fvv, grow(rr));
+                }
+                let pe = pb.block(e);
+                for jp in 0..kp {
+                    let psi: f64 = (0..np).map(|rr| pe[rr * kp + jp] * ps.phi[i][rr]).sum::<f64>() * wt;
+                    for col in 0..m {
+                        b_red[(jp, col)] += psi * dj[col];
+                    }
+                }
+            }
+        }
+        for (re, wsum) in groups.values() {
+            if *wsum > 0.0 {
+                *scale_sq += re.iter().map(|x| x * x).sum::<f64>() * ngp / wsum;
+            }
+        }
+        if let Some((kz, kl)) = kz {
+            let nc = 9 * ps.n_const;
+            fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
+                faer::MatRef::from_row_major_slice(v, rows, m)
+            }
+            lower_product(kl, rm(&ps.g_const, nc, m).transpose(), rm(&ag[..nc * m], nc, m), 1.0);
+            if n > ps.n_const {
+                lower_product(kl, rm(&g_dyn, 9 * n - nc, m).transpose(), rm(&ag[nc * m..], 9 * n - nc, m), 1.0);
+            }
+            let cm = &mx.mass_inv * &h * &mx.mass_inv;
+            faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, b_red.transpose(), (&cm * &b_red).as_ref(), 1.0, faer::Par::Seq);
+        }
+        POINT_BUFFERS.with(|b| *b.borrow_mut() = (ag, g_dyn));
+        Ok(())
+    }
+
+    /// The sample entries' dilatation moments at displacement u (see [`element_moments`]).
+    fn moments(&self, u: &[[f64; 3]], min_det: &mut f64) -> Result<Vec<Vec<f64>>, ElementError> {
+        let Some(ps) = &self.points else { return element_moments(self.red.model, &self.rule, self.sample, u, min_det) };
+        let np = self.red.basis.pressure.as_ref().map_or(1, |p| p.np);
+        (0..ps.item.len())
+            .map(|i| {
+                let j = self.point_f(ps, i, u)?.1;
+                *min_det = min_det.min(j);
+                Ok((0..np).map(|rr| ps.phi[i][rr] * j * ps.wj0[i]).collect())
+            })
+            .collect()
+    }
+
+    /// F = I + Σ u_a ⊗ ∇N_a and J = det F at sample entry i (an error where J ≤ 0).
+    fn point_f(&self, ps: &PointSample, i: usize, u: &[[f64; 3]]) -> Result<([[f64; 3]; 3], f64), ElementError> {
+        let e = self.elem_items[ps.item[i]];
+        let mut f = [[0.0f64; 3]; 3];
+        for (c, row) in f.iter_mut().enumerate() {
+            row[c] = 1.0;
+        }
+        for (a, &nd) in self.red.model.mesh.element(e).iter().enumerate() {
+            let ga = ps.grad[i][a];
+            for c in 0..3 {
+                for cj in 0..3 {
+                    f[c][cj] += u[nd][c] * ga[cj];
+                }
+            }
+        }
+        let j = crate::scalar::det3(&f);
+        if !(j > 0.0) {
+            return Err(ElementError::Inverted(e));
+        }
+        Ok((f, j))
     }
 
     /// The error indicator of a reduced state: the full model's momentum residual at the lifted
@@ -1172,7 +1598,8 @@ impl<'a> RomPath<'a> {
         let pi = match (&self.mixed, &self.red.basis.pressure) {
             (Some(mx), Some(pb)) => {
                 let (mut en, mut md) = (0.0, f64::INFINITY);
-                Some(reduced_pressure(model, &self.rule, self.sample, mx, pb, &u, &mut en, &mut md)?.2)
+                let mom = self.moments(&u, &mut md)?;
+                Some(reduced_pressure(model, self.sample, mx, pb, &mom, &mut en, &mut md)?.2)
             }
             _ => None,
         };
@@ -1295,28 +1722,40 @@ impl<'a> RomPath<'a> {
     }
 }
 
-/// The projections on a reduced pressure space at displacement u: θ = Π_r J, then
+/// The projections on a reduced pressure space at displacement u (given by the sample entries'
+/// dilatation moments, see [`element_moments`]): θ = Π_r J, then
 /// p = Π_r U'(θ). Returns each sampled element's pressure coefficients and the reduced
 /// H = Σ w Ψ_eᵀ (∫ φ φᵀ U″(θ)) Ψ_e and the reduced pressure coordinates π; adds the volumetric energy.
-fn reduced_pressure(
-    model: &Model,
-    rule: &HexRule,
-    sample: &Sample,
-    mx: &Mixed,
-    pb: &PressureBasis,
-    u: &[[f64; 3]],
-    energy: &mut f64,
-    min_det: &mut f64,
-) -> Result<(Vec<Vec<f64>>, Mat<f64>, Vec<f64>), ElementError> {
+/// The dilatation moments ∫ φ_r J dV of each entry of an element sample at displacement u
+/// (the smallest det F into `min_det`).
+fn element_moments(model: &Model, rule: &HexRule, sample: &Sample, u: &[[f64; 3]], min_det: &mut f64) -> Result<Vec<Vec<f64>>, ElementError> {
     let x0 = &model.mesh.nodes;
-    let (np, kp) = (pb.np, pb.kp);
-    let mut b = vec![0.0; kp];
-    for (&e, &w) in sample.elements.iter().zip(&sample.weights) {
+    let mut out = Vec::with_capacity(sample.elements.len());
+    for &e in &sample.elements {
         let conn = model.mesh.element(e);
         let xe: Vec<[f64; 3]> = conn.iter().map(|&n| x0[n]).collect();
         let ue: Vec<[f64; 3]> = conn.iter().map(|&n| u[n]).collect();
         let (be, _, mj) = element::dilatation_moments(&model.form, rule, &xe, &ue).map_err(|err| crate::model::relabel(err, e))?;
         *min_det = min_det.min(mj);
+        out.push(be);
+    }
+    Ok(out)
+}
+
+/// [`element_moments`] with `moments` given per sample entry (its element's, or its point's
+/// φ_r J w det J₀).
+fn reduced_pressure(
+    model: &Model,
+    sample: &Sample,
+    mx: &Mixed,
+    pb: &PressureBasis,
+    moments: &[Vec<f64>],
+    energy: &mut f64,
+    min_det: &mut f64,
+) -> Result<(Vec<Vec<f64>>, Mat<f64>, Vec<f64>), ElementError> {
+    let (np, kp) = (pb.np, pb.kp);
+    let mut b = vec![0.0; kp];
+    for ((&e, &w), be) in sample.elements.iter().zip(&sample.weights).zip(moments) {
         let pe = pb.block(e);
         for r in 0..np {
             for (bj, psi) in b.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {

@@ -50,6 +50,11 @@ pub struct ValidateArgs {
     /// DIR/manifest.json (see `fidelity.rom_fallback` in problems/README.md).
     #[arg(long)]
     pub calibrate: bool,
+    /// Take the full-order answers from an earlier validation's rows.jsonl on the same problem,
+    /// seed and pressure bound (another reduced model of the same mesh) instead of recomputing
+    /// them; each reused row is checked to be of the same design and marked `full_reused`.
+    #[arg(long, value_name = "ROWS.jsonl")]
+    pub full_from: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -84,6 +89,15 @@ pub struct TrainArgs {
     /// Pressure bound of the training ramps (kPa).
     #[arg(long, default_value_t = 100.0)]
     pub p_max: f64,
+    /// Hyper-reduce by quadrature points instead of whole elements (needs pressure modes):
+    /// each sampled point is evaluated alone, so far fewer kernels run per iteration.
+    #[arg(long)]
+    pub points: bool,
+    /// Fit the ECSW weights on at most this many snapshots, evenly spaced over the training
+    /// states (0: all). The quadrature-level fit's normal equations grow with the square of the
+    /// candidates (27 per element), so it fits on a subset.
+    #[arg(long, default_value_t = 0)]
+    pub ecsw_snapshots: usize,
     /// After training, compare with the full model on this many seeded random designs.
     #[arg(long, default_value_t = 0)]
     pub validate: usize,
@@ -112,6 +126,9 @@ fn train(a: &TrainArgs) -> Result<()> {
     if !(a.tau >= 0.0 && a.tau < 1.0) {
         anyhow::bail!("--tau {} must be in [0, 1)", a.tau);
     }
+    if a.points && a.pressure_modes == 0 {
+        anyhow::bail!("--points needs pressure modes (--pressure-modes > 0): an element's own pressure is condensed over all its quadrature points");
+    }
     if a.modes == 0 || a.designs == 0 {
         anyhow::bail!("--modes and --designs must be positive");
     }
@@ -122,7 +139,7 @@ fn train(a: &TrainArgs) -> Result<()> {
         designs: a.designs,
         p_max_kpa: a.p_max,
         truncation: Truncation::Modes(a.modes),
-        ecsw: EcswOptions { tau: a.tau, max_elements: if a.tau > 0.0 { 100_000 } else { 0 }, tangent_directions: 0 },
+        ecsw: EcswOptions { tau: a.tau, max_elements: if a.tau > 0.0 { 100_000 } else { 0 }, tangent_directions: 0, points: a.points, max_snapshots: a.ecsw_snapshots },
         pressure_modes: (a.pressure_modes > 0).then_some(Truncation::Modes(a.pressure_modes)),
         ..TrainOptions::default()
     };
@@ -169,12 +186,11 @@ fn train(a: &TrainArgs) -> Result<()> {
     };
     crate::rom::save(&a.out, &rom, &manifest)?;
     println!(
-        "wrote {}: {} modes, {} pressure modes, {} of {} elements; training {:.0} CPU s ({:.0} s wall)",
+        "wrote {}: {} modes, {} pressure modes, {}; training {:.0} CPU s ({:.0} s wall)",
         a.out.display(),
         manifest.k,
         manifest.kp,
-        manifest.sample.elements.len(),
-        manifest.report.elements,
+        manifest.sample.describe(manifest.report.elements),
         manifest.train_cpu_s,
         manifest.train_wall_s
     );
@@ -210,7 +226,19 @@ fn validate(a: &ValidateArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| a.rom.join(format!("validation-seed{}", a.seed)));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let rows_path = out.join("rows.jsonl");
-    let input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
+    let mut input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
+    if let Some(f) = &a.full_from {
+        input["full_from"] = serde_json::json!(f);
+    }
+    let full_rows: std::collections::BTreeMap<u64, serde_json::Value> = match &a.full_from {
+        Some(f) => {
+            if !f.is_file() {
+                anyhow::bail!("--full-from {}: no such file", f.display());
+            }
+            crate::evaluate::read_json_lines(f).into_iter().filter(|r| r.get("error").is_none()).filter_map(|r| r["index"].as_u64().map(|i| (i, r))).collect()
+        }
+        None => Default::default(),
+    };
     let input_path = out.join("input.json");
     if let Some(before) = std::fs::read_to_string(&input_path).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok()) {
         if before != input {
@@ -222,11 +250,11 @@ fn validate(a: &ValidateArgs) -> Result<()> {
     let done: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r["index"].as_u64()).collect();
     let designs = crate::rom::random_designs(a.designs, a.seed);
     println!(
-        "validating {} ({} modes, {} pressure modes, {} elements) on {} random designs (seed {}), {} already done, into {}",
+        "validating {} ({} modes, {} pressure modes, {}) on {} random designs (seed {}), {} already done, into {}",
         a.rom.display(),
         manifest.k,
         manifest.kp,
-        manifest.sample.elements.len(),
+        manifest.sample.describe(manifest.report.elements),
         a.designs,
         a.seed,
         done.len(),
@@ -241,7 +269,7 @@ fn validate(a: &ValidateArgs) -> Result<()> {
         if done.contains(&(i as u64)) {
             continue;
         }
-        match crate::rom::validation_row(&opts, &rom, i, d, a.p_max) {
+        match crate::rom::validation_row(&opts, &rom, i, d, a.p_max, full_rows.get(&(i as u64))) {
             Ok(row) => {
                 pb.suspend(|| {
                     eprintln!(

@@ -127,16 +127,19 @@ pub fn face_volume_hessian(rule: &FaceRule, x: &[[f64; 3]], h: &mut [f64]) {
                 a_t[i] += x[a][i] * dn[a][1];
             }
         }
-        let (sx, ss, st) = (skew(p), skew(a_s), skew(a_t));
         let c = -w / 3.0;
+        // each 3×3 block is skew: c (k_st skew(a_t) + k_ss skew(a_s) + k_sx skew(x)) = skew(v)
         for d in 0..nf {
             for e in 0..nf {
-                let k_st = -n[d] * dn[e][0] + dn[d][0] * n[e]; // × skew(a_t)
-                let k_ss = n[d] * dn[e][1] - dn[d][1] * n[e]; // × skew(a_s)
-                let k_sx = -dn[d][0] * dn[e][1] + dn[d][1] * dn[e][0]; // × skew(x)
+                let k_st = -n[d] * dn[e][0] + dn[d][0] * n[e];
+                let k_ss = n[d] * dn[e][1] - dn[d][1] * n[e];
+                let k_sx = -dn[d][0] * dn[e][1] + dn[d][1] * dn[e][0];
+                let v: [f64; 3] = std::array::from_fn(|i| c * (k_st * a_t[i] + k_ss * a_s[i] + k_sx * p[i]));
+                let b = skew(v);
                 for i in 0..3 {
+                    let row = &mut h[(3 * d + i) * nd + 3 * e..(3 * d + i) * nd + 3 * e + 3];
                     for j in 0..3 {
-                        h[(3 * d + i) * nd + 3 * e + j] += c * (k_st * st[i][j] + k_ss * ss[i][j] + k_sx * sx[i][j]);
+                        row[j] += b[i][j];
                     }
                 }
             }

@@ -200,50 +200,71 @@ fn sweep_throughput() {
 /// CPU s per design of both and the reduced model's Ω error.
 fn sweep_throughput_rom() {
     use twistopt::sweep::{evaluate_design, problem_from_str, Shard, SweepConfig};
-    let rom_dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/rom/sweep-k80");
-    let text = format!(
-        "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\nrom = {}\nrom_fallback = inf\n[sweep]\nr_mm = [8.660254037844386, 17.0]\nl_mm = [10, 20]\nalpha_deg = [120, 300]\n",
-        toml_string(&rom_dir.display().to_string())
-    );
-    let (problem, section) = problem_from_str(&text, "bench", &[]).expect("problem");
-    let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).expect("config");
-    let v = cfg.problem.validate().expect("valid");
-    let mut ro = cfg.problem.scene_options(&v);
-    ro.keep_fields = false;
-    let mut fo = ro.clone();
-    fo.rom = None;
+    // the committed reduced models of the sweep preset: element-level and quadrature-level ECSW
+    let models = [("sweep-k80", "80 modes, 10 pressure modes, ECSW 140 of 256 elements"), ("sweep-k80-points", "80 modes, 10 pressure modes, ECSW 922 quadrature points in 235 of 256 elements")];
+    let config = |rom_dir: &std::path::Path| {
+        let text = format!(
+            "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\nrom = {}\nrom_fallback = inf\n[sweep]\nr_mm = [8.660254037844386, 17.0]\nl_mm = [10, 20]\nalpha_deg = [120, 300]\n",
+            toml_string(&rom_dir.display().to_string())
+        );
+        let (problem, section) = problem_from_str(&text, "bench", &[]).expect("problem");
+        SweepConfig::new(problem, section.as_ref(), None, Shard::default()).expect("config")
+    };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
-    let mut designs = Vec::new();
-    let (mut cpu_r, mut cpu_f) = (0.0, 0.0);
-    for i in (0..cfg.grid.len()).filter(|i| i % 3 == 0) {
-        let d = cfg.grid.design(i);
-        let (r, f) = pool.install(|| (evaluate_design(i, &d, cfg.grid.range, &v, &ro, cfg.p_max_kpa), evaluate_design(i, &d, cfg.grid.range, &v, &fo, cfg.p_max_kpa)));
-        cpu_r += r.wall_time_s;
-        cpu_f += f.wall_time_s;
-        let (or, of) = (r.primary.omega_j_m3, f.primary.omega_j_m3);
-        designs.push(json!({"id": r.id, "omega_rom_J_m3": or, "omega_full_J_m3": of,
-            "omega_rel_error": match (or, of) { (Some(a), Some(b)) if b != 0.0 => json!((a - b) / b), _ => Value::Null },
-            "rom_s": r.wall_time_s, "full_s": f.wall_time_s,
-            "rom_path": path_work(&r.scenes.values().map(|s| &s.path).collect::<Vec<_>>()),
-            "rom_indicator": r.scenes.iter().map(|(k, s)| (k.clone(), json!(s.rom_indicator))).collect::<serde_json::Map<_, _>>()}));
+    let mut full: Option<(Vec<(Option<f64>, f64)>, f64)> = None;
+    let mut out = serde_json::Map::new();
+    for (name, what) in models {
+        let cfg = config(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/rom").join(name));
+        let v = cfg.problem.validate().expect("valid");
+        let mut ro = cfg.problem.scene_options(&v);
+        ro.keep_fields = false;
+        let mut fo = ro.clone();
+        fo.rom = None;
+        let ids: Vec<u64> = (0..cfg.grid.len()).filter(|i| i % 3 == 0).collect();
+        // the full model once (the same designs for both reduced models)
+        let (full_rows, cpu_f) = full.get_or_insert_with(|| {
+            let rows: Vec<(Option<f64>, f64)> = ids
+                .iter()
+                .map(|&i| {
+                    let f = pool.install(|| evaluate_design(i, &cfg.grid.design(i), cfg.grid.range, &v, &fo, cfg.p_max_kpa));
+                    (f.primary.omega_j_m3, f.wall_time_s)
+                })
+                .collect();
+            let t = rows.iter().map(|r| r.1).sum::<f64>();
+            (rows, t)
+        });
+        let mut designs = Vec::new();
+        let mut cpu_r = 0.0;
+        for (&i, &(of, full_s)) in ids.iter().zip(full_rows.iter()) {
+            let d = cfg.grid.design(i);
+            let r = pool.install(|| evaluate_design(i, &d, cfg.grid.range, &v, &ro, cfg.p_max_kpa));
+            cpu_r += r.wall_time_s;
+            let or = r.primary.omega_j_m3;
+            designs.push(json!({"id": r.id, "omega_rom_J_m3": or, "omega_full_J_m3": of,
+                "omega_rel_error": match (or, of) { (Some(a), Some(b)) if b != 0.0 => json!((a - b) / b), _ => Value::Null },
+                "rom_s": r.wall_time_s, "full_s": full_s,
+                "rom_path": path_work(&r.scenes.values().map(|s| &s.path).collect::<Vec<_>>()),
+                "rom_indicator": r.scenes.iter().map(|(k, s)| (k.clone(), json!(s.rom_indicator))).collect::<serde_json::Map<_, _>>()}));
+        }
+        let n = designs.len() as f64;
+        println!(
+            "sweep_throughput_rom {name} (sweep preset, one thread): {:.2} s per design reduced vs {:.2} s full ({:.1}×); Table-I grid ≈ {:.1} h on 2 cores; {}",
+            cpu_r / n,
+            *cpu_f / n,
+            *cpu_f / cpu_r,
+            39_864.0 * cpu_r / n / 2.0 / 3600.0,
+            json!(designs)
+        );
+        out.insert(
+            name.to_string(),
+            json!({
+                "description": format!("sweep_throughput's 3 designs (free + blocked to failure or 150 kPa) on the committed reduced model studies/rom/{name} ({what}; no fallback) and on the full model, one thread, one design at a time; release build. Times depend on the machine's load"),
+                "designs": designs, "rom_seconds_per_design": cpu_r / n, "full_seconds_per_design": *cpu_f / n, "speedup": *cpu_f / cpu_r,
+                "table1_grid_hours_on_2_cores": 39_864.0 * cpu_r / n / 2.0 / 3600.0, "target_rom_seconds_per_design": 0.18,
+            }),
+        );
     }
-    let n = designs.len() as f64;
-    println!(
-        "sweep_throughput_rom (sweep preset, one thread): {:.2} s per design reduced vs {:.2} s full ({:.1}×); Table-I grid ≈ {:.1} h on 2 cores; {}",
-        cpu_r / n,
-        cpu_f / n,
-        cpu_f / cpu_r,
-        39_864.0 * cpu_r / n / 2.0 / 3600.0,
-        json!(designs)
-    );
-    merge(
-        "sweep_throughput_rom",
-        json!({
-            "description": "sweep_throughput's 3 designs (free + blocked to failure or 150 kPa) on the committed reduced model studies/rom/sweep-k80 (80 modes, 10 pressure modes, 140 of 256 elements; no fallback) and on the full model, one thread, one design at a time; release build. Times depend on the machine's load",
-            "designs": designs, "rom_seconds_per_design": cpu_r / n, "full_seconds_per_design": cpu_f / n, "speedup": cpu_f / cpu_r,
-            "table1_grid_hours_on_2_cores": 39_864.0 * cpu_r / n / 2.0 / 3600.0, "target_rom_seconds_per_design": 0.18,
-        }),
-    );
+    merge("sweep_throughput_rom", Value::Object(out));
 }
 
 fn toml_string(s: &str) -> String {

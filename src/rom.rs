@@ -601,6 +601,105 @@ pub fn validation_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usi
     Ok(row)
 }
 
+/// One design of the reduced model's robustness check (`rom check`): free + blocked ramped
+/// towards `p_kpa` (either sign) on the reduced model alone (no fallback), each inside
+/// `catch_unwind`. The row lists every *problem*: a panic, an error instead of a scene status, a
+/// non-finite recorded value (pressure, θ, τ, radius, volume, indicator, Ω) or a failure status
+/// without its cause.
+pub fn check_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usize, d: &Design, p_kpa: f64) -> Result<serde_json::Value> {
+    use crate::scene::{run_pressure, SceneStatus};
+    let mut ro = opts.clone();
+    ro.rom = Some(rom.clone());
+    ro.rom_fallback = None;
+    let g = ActuatorGeometry::new(d, RangePolicy::TableI).map_err(|e| anyhow!("{e}"))?;
+    let c0 = crate::evaluate::process_cpu_time_s();
+    let mut scenes = serde_json::Map::new();
+    let mut problems: Vec<String> = Vec::new();
+    let mut results = Vec::new();
+    for kind in [SceneKind::Free, SceneKind::Blocked] {
+        let name = kind.name();
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_pressure(&g, &ro, kind, &[p_kpa]))) {
+            Err(e) => {
+                let msg = e.downcast_ref::<String>().cloned().or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_default();
+                problems.push(format!("{name}: panic: {msg}"));
+                scenes.insert(name.into(), serde_json::json!({ "status": "panic" }));
+            }
+            Ok(Err(e)) => {
+                problems.push(format!("{name}: error without a scene status: {e}"));
+                scenes.insert(name.into(), serde_json::json!({ "status": "error", "cause": e.to_string() }));
+            }
+            Ok(Ok(r)) => {
+                let finite = r.steps.iter().all(|s| [s.p_kpa, s.theta_deg, s.tau_nm, s.max_radius_mm, s.cavity_volume_mm3].iter().all(|v| v.is_finite()));
+                if !finite {
+                    problems.push(format!("{name}: a non-finite recorded value"));
+                }
+                if r.rom_indicator.is_some_and(|v| !v.is_finite()) {
+                    problems.push(format!("{name}: non-finite indicator"));
+                }
+                if r.status != SceneStatus::Completed && r.cause.trim().is_empty() {
+                    problems.push(format!("{name}: status {} without a cause", r.status.name()));
+                }
+                let last = r.steps.last();
+                scenes.insert(
+                    name.into(),
+                    serde_json::json!({
+                        "status": r.status.name(), "cause": r.cause, "steps": r.steps.len(),
+                        "p_end_kPa": last.map(|s| s.p_kpa), "theta_end_deg": last.map(|s| s.theta_deg), "tau_end_Nm": last.map(|s| s.tau_nm),
+                        "indicator": r.rom_indicator,
+                    }),
+                );
+                results.push(r);
+            }
+        }
+    }
+    let omega = (results.len() == 2).then(|| omega_of(&results[0], &results[1]).0);
+    if omega.is_some_and(|o| !o.is_finite()) {
+        problems.push("non-finite Ω".into());
+    }
+    Ok(serde_json::json!({
+        "index": index, "design": d, "p_kPa": p_kpa, "scenes": scenes, "omega_J_m3": omega,
+        "problems": problems, "cpu_s": crate::evaluate::process_cpu_time_s() - c0,
+    }))
+}
+
+/// `count` pressures uniform in [lo, hi] kPa (seeded, SplitMix64).
+pub fn random_pressures(count: usize, seed: u64, lo: f64, hi: f64) -> Vec<f64> {
+    let mut s = seed ^ 0xD1B54A32D192ED03;
+    (0..count)
+        .map(|_| {
+            s = s.wrapping_add(0x9E3779B97F4A7C15);
+            let mut z = s;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+            lo + (hi - lo) * (((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64)
+        })
+        .collect()
+}
+
+/// The summary of `rom check` rows: statuses per scene, problems, CPU s per design.
+pub fn check_summary(rows: &[serde_json::Value]) -> serde_json::Value {
+    let mut statuses: std::collections::BTreeMap<String, std::collections::BTreeMap<String, usize>> = Default::default();
+    let mut problems = Vec::new();
+    for r in rows {
+        if let Some(sc) = r["scenes"].as_object() {
+            for (name, v) in sc {
+                *statuses.entry(name.clone()).or_default().entry(v["status"].as_str().unwrap_or("?").to_string()).or_default() += 1;
+            }
+        }
+        if let Some(e) = r.get("error") {
+            problems.push(serde_json::json!({ "index": r["index"], "problem": e }));
+        }
+        for p in r["problems"].as_array().into_iter().flatten() {
+            problems.push(serde_json::json!({ "index": r["index"], "problem": p }));
+        }
+    }
+    let cpu: Vec<f64> = rows.iter().filter_map(|r| r["cpu_s"].as_f64()).collect();
+    serde_json::json!({
+        "rows": rows.len(), "statuses": statuses, "problems": problems.len(), "problem_rows": problems,
+        "cpu_s_per_design": if cpu.is_empty() { serde_json::Value::Null } else { serde_json::json!(cpu.iter().sum::<f64>() / cpu.len() as f64) },
+    })
+}
+
 /// The fallback threshold calibrated on validation rows ([`validation_row`]): a row is *bad*
 /// when its reduced Ω is off by more than 3 % and by more than 0.1 % of the rows' largest Ω, or
 /// an end pressure by more than 1 %; a row's indicator is the larger of its two scenes'. The

@@ -466,6 +466,21 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
         .output()
         .unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("another model, seed"), "{}", String::from_utf8_lossy(&out.stderr));
+    // rom check: random designs and pressures of either sign on the reduced model alone, every
+    // scene a status with its cause (vacuum is refused as a model error), no problem
+    let out =
+        bin().args(["rom", "check", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "4", "--seed", "2", "--p-min", "-30", "--rom"]).arg(&romdir).output().unwrap();
+    assert!(out.status.success(), "{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let cs: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(romdir.join("check-seed2/summary.json")).unwrap()).unwrap();
+    assert_eq!(cs["rows"], 4);
+    assert_eq!(cs["problems"], 0, "{cs}");
+    let crow: Vec<serde_json::Value> = std::fs::read_to_string(romdir.join("check-seed2/rows.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    for r in &crow {
+        for sc in ["free", "blocked"] {
+            let st = r["scenes"][sc]["status"].as_str().unwrap();
+            assert!(st == "completed" || !r["scenes"][sc]["cause"].as_str().unwrap().is_empty(), "{r}");
+        }
+    }
     // a quadrature-level model on the same cached ramps: its sample is of points, it evaluates,
     // and its validation reuses the element model's full-order rows (checked, marked)
     let ptdir = dir.join("rom-points");

@@ -20,6 +20,40 @@ pub enum RomCommand {
     /// line per design, appended as each finishes: re-running the same command resumes) and
     /// OUT/summary.json (errors, statuses, indicators, CPU s per design).
     Validate(ValidateArgs),
+    /// Robustness check of a reduced model: seeded random designs of the Table-I box, each with
+    /// a random pressure bound of either sign, free + blocked on the reduced model alone (no
+    /// fallback): every scene must end in a status with its cause, never a panic, an error or a
+    /// non-finite value. OUT/rows.jsonl (resumable), OUT/summary.json; exits non-zero on any
+    /// problem.
+    Check(CheckArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    /// Problem file the model was trained for.
+    #[arg(value_name = "PROBLEM.toml")]
+    pub problem: PathBuf,
+    /// Override a problem value: section.key=value (repeatable).
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
+    pub set: Vec<String>,
+    /// The reduced model's directory.
+    #[arg(long, value_name = "DIR")]
+    pub rom: PathBuf,
+    /// Number of random designs.
+    #[arg(long, default_value_t = 1000)]
+    pub designs: usize,
+    /// Seed of the designs and pressures.
+    #[arg(long, default_value_t = 11)]
+    pub seed: u64,
+    /// Lowest pressure bound (kPa; negative: vacuum).
+    #[arg(long, default_value_t = -20.0, allow_hyphen_values = true)]
+    pub p_min: f64,
+    /// Highest pressure bound (kPa).
+    #[arg(long, default_value_t = 150.0, allow_hyphen_values = true)]
+    pub p_max: f64,
+    /// Output directory (default: DIR/check-seed<SEED>).
+    #[arg(long, value_name = "OUT")]
+    pub out: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -107,6 +141,7 @@ pub fn run(args: &RomArgs) -> Result<()> {
     match &args.command {
         RomCommand::Train(a) => train(a),
         RomCommand::Validate(a) => validate(a),
+        RomCommand::Check(a) => check(a),
     }
 }
 
@@ -225,7 +260,6 @@ fn validate(a: &ValidateArgs) -> Result<()> {
     let rom = std::sync::Arc::new(rom);
     let out = a.out.clone().unwrap_or_else(|| a.rom.join(format!("validation-seed{}", a.seed)));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let rows_path = out.join("rows.jsonl");
     let mut input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
     if let Some(f) = &a.full_from {
         input["full_from"] = serde_json::json!(f);
@@ -239,63 +273,38 @@ fn validate(a: &ValidateArgs) -> Result<()> {
         }
         None => Default::default(),
     };
-    let input_path = out.join("input.json");
-    if let Some(before) = std::fs::read_to_string(&input_path).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok()) {
-        if before != input {
-            anyhow::bail!("{} holds a validation of another model, seed or pressure bound ({before}); use another --out", out.display());
-        }
-    }
-    crate::sweep::write_atomic(&input_path, &serde_json::to_string_pretty(&input)?)?;
-    let mut rows: Vec<serde_json::Value> = crate::evaluate::read_json_lines(&rows_path);
-    let done: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r["index"].as_u64()).collect();
     let designs = crate::rom::random_designs(a.designs, a.seed);
-    println!(
-        "validating {} ({} modes, {} pressure modes, {}) on {} random designs (seed {}), {} already done, into {}",
-        a.rom.display(),
-        manifest.k,
-        manifest.kp,
-        manifest.sample.describe(manifest.report.elements),
-        a.designs,
-        a.seed,
-        done.len(),
-        out.display()
-    );
-    let pb = indicatif::ProgressBar::with_draw_target(Some(a.designs as u64), indicatif::ProgressDrawTarget::stderr());
-    if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} designs, ETA {eta_precise} {msg}") {
-        pb.set_style(style.progress_chars("=> "));
-    }
-    pb.set_position(done.len() as u64);
-    for (i, d) in designs.iter().enumerate() {
-        if done.contains(&(i as u64)) {
-            continue;
-        }
-        match crate::rom::validation_row(&opts, &rom, i, d, a.p_max, full_rows.get(&(i as u64))) {
-            Ok(row) => {
-                pb.suspend(|| {
-                    eprintln!(
-                        "  {i}: {}: Ω full {:.3} reduced {:.3} J/m³; {:.1} vs {:.1} CPU s",
-                        crate::rom::label(d),
-                        row["omega_full"].as_f64().unwrap_or(f64::NAN),
-                        row["omega_rom"].as_f64().unwrap_or(f64::NAN),
-                        row["cpu_s_rom"].as_f64().unwrap_or(f64::NAN),
-                        row["cpu_s_full"].as_f64().unwrap_or(f64::NAN)
-                    )
-                });
-                crate::evaluate::append_json_line(&rows_path, &row)?;
-                rows.push(row);
-            }
-            Err(e) => {
-                // recorded, so that the summary counts it and a resume does not retry it forever
-                let row = serde_json::json!({ "index": i, "design": d, "error": format!("{e:#}") });
-                pb.suspend(|| eprintln!("  {i}: {}: failed: {e:#}", crate::rom::label(d)));
-                crate::evaluate::append_json_line(&rows_path, &row)?;
-                rows.push(row);
-            }
-        }
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
-    rows.sort_by_key(|r| r["index"].as_u64().unwrap_or(u64::MAX));
+    let header = |done: usize| {
+        println!(
+            "validating {} ({} modes, {} pressure modes, {}) on {} random designs (seed {}), {} already done, into {}",
+            a.rom.display(),
+            manifest.k,
+            manifest.kp,
+            manifest.sample.describe(manifest.report.elements),
+            a.designs,
+            a.seed,
+            done,
+            out.display()
+        )
+    };
+    let rows = resumable_rows(
+        &out,
+        &input,
+        "a validation of another model, seed or pressure bound",
+        designs.len(),
+        header,
+        |i| crate::rom::validation_row(&opts, &rom, i, &designs[i], a.p_max, full_rows.get(&(i as u64))).map_err(|e| (serde_json::json!(designs[i]), e)),
+        |i, row| {
+            format!(
+                "  {i}: {}: Ω full {:.3} reduced {:.3} J/m³; {:.1} vs {:.1} CPU s",
+                crate::rom::label(&designs[i]),
+                row["omega_full"].as_f64().unwrap_or(f64::NAN),
+                row["omega_rom"].as_f64().unwrap_or(f64::NAN),
+                row["cpu_s_rom"].as_f64().unwrap_or(f64::NAN),
+                row["cpu_s_full"].as_f64().unwrap_or(f64::NAN)
+            )
+        },
+    )?;
     let failed = rows.iter().filter(|r| r.get("error").is_some()).count();
     let calibration = crate::rom::calibrate_fallback(&rows);
     let ok: Vec<serde_json::Value> = rows.into_iter().filter(|r| r.get("error").is_none()).collect();
@@ -333,4 +342,104 @@ fn validate(a: &ValidateArgs) -> Result<()> {
         println!("recorded the fallback threshold in {}", a.rom.join("manifest.json").display());
     }
     Ok(())
+}
+
+fn check(a: &CheckArgs) -> Result<()> {
+    let opts = full_options(&a.problem, &a.set)?;
+    if a.designs == 0 {
+        anyhow::bail!("--designs must be positive");
+    }
+    if !(a.p_min.is_finite() && a.p_max.is_finite() && a.p_min < a.p_max && a.p_min >= -1000.0 && a.p_max <= 1000.0) {
+        anyhow::bail!("--p-min {} and --p-max {} must satisfy -1000 <= p-min < p-max <= 1000 kPa", a.p_min, a.p_max);
+    }
+    let (rom, manifest) = crate::rom::load(&a.rom, &opts)?;
+    let rom = std::sync::Arc::new(rom);
+    let out = a.out.clone().unwrap_or_else(|| a.rom.join(format!("check-seed{}", a.seed)));
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "seed": a.seed, "p_min_kPa": a.p_min, "p_max_kPa": a.p_max });
+    let designs = crate::rom::random_designs(a.designs, a.seed);
+    let pressures = crate::rom::random_pressures(a.designs, a.seed, a.p_min, a.p_max);
+    let header = |done: usize| {
+        println!("checking {} on {} random designs and pressures in [{}, {}] kPa (seed {}), {done} already done, into {}", a.rom.display(), a.designs, a.p_min, a.p_max, a.seed, out.display())
+    };
+    let rows = resumable_rows(
+        &out,
+        &input,
+        "a check of another model, seed or pressure range",
+        designs.len(),
+        header,
+        |i| crate::rom::check_row(&opts, &rom, i, &designs[i], pressures[i]).map_err(|e| (serde_json::json!(designs[i]), e)),
+        |i, row| {
+            let st = |s: &str| row["scenes"][s]["status"].as_str().unwrap_or("?").to_string();
+            format!("  {i}: {} to {:.1} kPa: {} / {}; {} problems", crate::rom::label(&designs[i]), pressures[i], st("free"), st("blocked"), row["problems"].as_array().map_or(0, |p| p.len()))
+        },
+    )?;
+    let summary = crate::rom::check_summary(&rows);
+    crate::sweep::write_atomic(&out.join("summary.json"), &serde_json::to_string_pretty(&summary)?)?;
+    println!(
+        "{} designs: statuses {}; {} problems; {:.2} CPU s per design; wrote {}",
+        summary["rows"],
+        summary["statuses"],
+        summary["problems"],
+        summary["cpu_s_per_design"].as_f64().unwrap_or(f64::NAN),
+        out.join("summary.json").display()
+    );
+    if summary["problems"].as_u64() != Some(0) {
+        anyhow::bail!("{} problems (see {})", summary["problems"], out.join("summary.json").display());
+    }
+    Ok(())
+}
+
+/// The resumable loop of `rom validate` and `rom check`: OUT/input.json must equal `input` (else
+/// the directory holds `other`, refused), OUT/rows.jsonl gets one line per index as each
+/// finishes (`row(i)`, or on its error the record {index, design, error}); indices already
+/// there are skipped. Returns every row, sorted by index.
+#[allow(clippy::too_many_arguments)]
+fn resumable_rows(
+    out: &std::path::Path,
+    input: &serde_json::Value,
+    other: &str,
+    count: usize,
+    header: impl Fn(usize),
+    row: impl Fn(usize) -> std::result::Result<serde_json::Value, (serde_json::Value, anyhow::Error)>,
+    line: impl Fn(usize, &serde_json::Value) -> String,
+) -> Result<Vec<serde_json::Value>> {
+    let input_path = out.join("input.json");
+    if let Some(before) = std::fs::read_to_string(&input_path).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok()) {
+        if &before != input {
+            anyhow::bail!("{} holds {other} ({before}); use another --out", out.display());
+        }
+    }
+    crate::sweep::write_atomic(&input_path, &serde_json::to_string_pretty(input)?)?;
+    let rows_path = out.join("rows.jsonl");
+    let mut rows: Vec<serde_json::Value> = crate::evaluate::read_json_lines(&rows_path);
+    let done: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r["index"].as_u64()).collect();
+    header(done.len());
+    let pb = indicatif::ProgressBar::with_draw_target(Some(count as u64), indicatif::ProgressDrawTarget::stderr());
+    if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} designs, ETA {eta_precise} {msg}") {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_position(done.len() as u64);
+    for i in 0..count {
+        if done.contains(&(i as u64)) {
+            continue;
+        }
+        let r = match row(i) {
+            Ok(r) => {
+                pb.suspend(|| eprintln!("{}", line(i, &r)));
+                r
+            }
+            Err((design, e)) => {
+                // recorded, so that the summary counts it and a resume does not retry it forever
+                pb.suspend(|| eprintln!("  {i}: failed: {e:#}"));
+                serde_json::json!({ "index": i, "design": design, "error": format!("{e:#}") })
+            }
+        };
+        crate::evaluate::append_json_line(&rows_path, &r)?;
+        rows.push(r);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    rows.sort_by_key(|r| r["index"].as_u64().unwrap_or(u64::MAX));
+    Ok(rows)
 }

@@ -28,17 +28,24 @@ pub enum RomCommand {
     Check(CheckArgs),
 }
 
+/// The problem and the reduced model a `rom validate` or `rom check` is of.
 #[derive(Debug, Args)]
-pub struct CheckArgs {
-    /// Problem file the model was trained for.
+pub struct RomOf {
+    /// Problem file the model was trained for (mesh, element, material, scene options).
     #[arg(value_name = "PROBLEM.toml")]
     pub problem: PathBuf,
     /// Override a problem value: section.key=value (repeatable).
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
     pub set: Vec<String>,
-    /// The reduced model's directory.
+    /// The reduced model's directory (`rom train --out`).
     #[arg(long, value_name = "DIR")]
     pub rom: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    pub of: RomOf,
     /// Number of random designs.
     #[arg(long, default_value_t = 1000)]
     pub designs: usize,
@@ -58,15 +65,8 @@ pub struct CheckArgs {
 
 #[derive(Debug, Args)]
 pub struct ValidateArgs {
-    /// Problem file the model was trained for (mesh, element, material, scene options).
-    #[arg(value_name = "PROBLEM.toml")]
-    pub problem: PathBuf,
-    /// Override a problem value: section.key=value (repeatable).
-    #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
-    pub set: Vec<String>,
-    /// The reduced model's directory (`rom train --out`).
-    #[arg(long, value_name = "DIR")]
-    pub rom: PathBuf,
+    #[command(flatten)]
+    pub of: RomOf,
     /// Number of random designs.
     #[arg(long, default_value_t = 200)]
     pub designs: usize,
@@ -249,18 +249,18 @@ fn train(a: &TrainArgs) -> Result<()> {
 }
 
 fn validate(a: &ValidateArgs) -> Result<()> {
-    let opts = full_options(&a.problem, &a.set)?;
+    let opts = full_options(&a.of.problem, &a.of.set)?;
     if a.designs == 0 {
         anyhow::bail!("--designs must be positive");
     }
     if !(a.p_max > 0.0 && a.p_max <= 1000.0) {
         anyhow::bail!("--p-max {} must be in (0, 1000] kPa", a.p_max);
     }
-    let (rom, mut manifest) = crate::rom::load(&a.rom, &opts)?;
+    let (rom, mut manifest) = crate::rom::load(&a.of.rom, &opts)?;
     let rom = std::sync::Arc::new(rom);
-    let out = a.out.clone().unwrap_or_else(|| a.rom.join(format!("validation-seed{}", a.seed)));
+    let out = a.out.clone().unwrap_or_else(|| a.of.rom.join(format!("validation-seed{}", a.seed)));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let mut input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
+    let mut input = serde_json::json!({ "rom": a.of.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
     if let Some(f) = &a.full_from {
         input["full_from"] = serde_json::json!(f);
     }
@@ -277,7 +277,7 @@ fn validate(a: &ValidateArgs) -> Result<()> {
     let header = |done: usize| {
         println!(
             "validating {} ({} modes, {} pressure modes, {}) on {} random designs (seed {}), {} already done, into {}",
-            a.rom.display(),
+            a.of.rom.display(),
             manifest.k,
             manifest.kp,
             manifest.sample.describe(manifest.report.elements),
@@ -338,29 +338,29 @@ fn validate(a: &ValidateArgs) -> Result<()> {
         c["validation"] = serde_json::json!(out);
         manifest.fallback_indicator = Some(t);
         manifest.fallback_calibration = Some(c);
-        crate::sweep::write_atomic(&a.rom.join("manifest.json"), &serde_json::to_string_pretty(&manifest)?)?;
-        println!("recorded the fallback threshold in {}", a.rom.join("manifest.json").display());
+        crate::sweep::write_atomic(&a.of.rom.join("manifest.json"), &serde_json::to_string_pretty(&manifest)?)?;
+        println!("recorded the fallback threshold in {}", a.of.rom.join("manifest.json").display());
     }
     Ok(())
 }
 
 fn check(a: &CheckArgs) -> Result<()> {
-    let opts = full_options(&a.problem, &a.set)?;
+    let opts = full_options(&a.of.problem, &a.of.set)?;
     if a.designs == 0 {
         anyhow::bail!("--designs must be positive");
     }
     if !(a.p_min.is_finite() && a.p_max.is_finite() && a.p_min < a.p_max && a.p_min >= -1000.0 && a.p_max <= 1000.0) {
         anyhow::bail!("--p-min {} and --p-max {} must satisfy -1000 <= p-min < p-max <= 1000 kPa", a.p_min, a.p_max);
     }
-    let (rom, manifest) = crate::rom::load(&a.rom, &opts)?;
+    let (rom, manifest) = crate::rom::load(&a.of.rom, &opts)?;
     let rom = std::sync::Arc::new(rom);
-    let out = a.out.clone().unwrap_or_else(|| a.rom.join(format!("check-seed{}", a.seed)));
+    let out = a.out.clone().unwrap_or_else(|| a.of.rom.join(format!("check-seed{}", a.seed)));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let input = serde_json::json!({ "rom": a.rom, "mesh": manifest.mesh, "k": manifest.k, "seed": a.seed, "p_min_kPa": a.p_min, "p_max_kPa": a.p_max });
+    let input = serde_json::json!({ "rom": a.of.rom, "mesh": manifest.mesh, "k": manifest.k, "seed": a.seed, "p_min_kPa": a.p_min, "p_max_kPa": a.p_max });
     let designs = crate::rom::random_designs(a.designs, a.seed);
     let pressures = crate::rom::random_pressures(a.designs, a.seed, a.p_min, a.p_max);
     let header = |done: usize| {
-        println!("checking {} on {} random designs and pressures in [{}, {}] kPa (seed {}), {done} already done, into {}", a.rom.display(), a.designs, a.p_min, a.p_max, a.seed, out.display())
+        println!("checking {} on {} random designs and pressures in [{}, {}] kPa (seed {}), {done} already done, into {}", a.of.rom.display(), a.designs, a.p_min, a.p_max, a.seed, out.display())
     };
     let rows = resumable_rows(
         &out,

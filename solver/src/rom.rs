@@ -1107,7 +1107,15 @@ impl<'a> RomPath<'a> {
             }
         }
         let mixed = basis.pressure.as_ref().map(|pb| Mixed::new(model, pb, sample, &rule)).transpose()?;
-        let linear = |nodes: &[usize]| nodes.iter().all(|&n| (0..3).all(|c| matches!(model.dofs.comps[3 * n + c], Comp::Free(_) | Comp::Presc(_) | Comp::Lin(..))));
+        // a periodic pair's rotation depends on the prescribed values only (not on z): along a
+        // path whose prescribed values do not move, its rows of J are constant too
+        let presc_fixed = from.presc == to.presc;
+        let kin0 = model.dofs.body_kinematics(&vec![0.0; model.n_reduced()], &from.presc);
+        let linear = |nodes: &[usize]| {
+            nodes.iter().all(|&n| {
+                (0..3).all(|c| matches!(model.dofs.comps[3 * n + c], Comp::Free(_) | Comp::Presc(_) | Comp::Lin(..)) || (presc_fixed && matches!(model.dofs.comps[3 * n + c], Comp::Periodic(_))))
+            })
+        };
         let mut scratch = Vec::new();
         let mut jac_const = Vec::new();
         let elem_items = if sample.is_points() { sample.distinct_elements() } else { sample.elements.clone() };
@@ -1115,7 +1123,7 @@ impl<'a> RomPath<'a> {
         for nodes in items {
             jac_const.push(linear(nodes).then(|| {
                 let mut j = Vec::new();
-                red.jacobian(nodes, &[], &mut scratch, &mut j);
+                red.jacobian(nodes, &kin0, &mut scratch, &mut j);
                 j
             }));
         }

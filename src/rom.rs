@@ -200,15 +200,18 @@ pub fn bases(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp]) -> Result<Ba
 }
 
 /// The ECSW sample of a basis on training ramps (each state on its own design's geometry);
-/// `ecsw.max_elements == 0`: every element at weight 1.
+/// `ecsw.max_elements == 0`: every element (with `ecsw.points`, every quadrature point) at
+/// weight 1.
 pub fn fit_sample(opts: &SceneOptions, basis: &Basis, ramps: &[Ramp], ecsw: &EcswOptions) -> Result<twistopt_solver::rom::EcswFit> {
     let mut full = opts.clone();
     full.rom = None;
     let first = ramps.first().ok_or_else(|| anyhow!("no training ramps"))?;
     if ecsw.max_elements == 0 {
         let geom = ActuatorGeometry::new(&first.design, RangePolicy::TableI)?;
-        let elements = SceneModel::build(&geom, &full, first.kind)?.model.mesh.n_elements();
-        return Ok(twistopt_solver::rom::EcswFit { sample: twistopt_solver::rom::Sample::all(elements), residual: 0.0, rows: 0 });
+        let model = SceneModel::build(&geom, &full, first.kind)?.model;
+        let elements = model.mesh.n_elements();
+        let sample = if ecsw.points { twistopt_solver::rom::Sample::all_points(elements, model.form.rule().weights.len()) } else { twistopt_solver::rom::Sample::all(elements) };
+        return Ok(twistopt_solver::rom::EcswFit { sample, residual: 0.0, rows: 0 });
     }
     let mut acc = twistopt_solver::rom::EcswAccumulator::new(ecsw.tangent_directions);
     acc.points = ecsw.points;

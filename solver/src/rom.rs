@@ -1459,7 +1459,8 @@ impl<'a> RomPath<'a> {
         let mut c = vec![0.0; m];
         let mut dj = vec![0.0; m];
         // per element item: the sum of its points' weighted reduced forces and their weight
-        let mut groups: std::collections::HashMap<usize, (Vec<f64>, f64)> = std::collections::HashMap::new();
+        // (indexed by item, not hashed: the sum's order, and so the Newton test, is deterministic)
+        let mut groups: Vec<(Vec<f64>, f64)> = vec![(Vec::new(), 0.0); self.elem_items.len()];
         let ngp = self.rule.weights.len() as f64;
         let axpy = |o: &mut [f64], c: f64, x: &[f64]| {
             for (a, b) in o.iter_mut().zip(x) {
@@ -1492,7 +1493,10 @@ impl<'a> RomPath<'a> {
             for (rr, &pv) in pf.iter().enumerate() {
                 axpy(&mut c, pv * wj0 * w, grow(rr));
             }
-            let grp = groups.entry(ps.item[i]).or_insert_with(|| (vec![0.0; m], 0.0));
+            let grp = &mut groups[ps.item[i]];
+            if grp.0.is_empty() {
+                grp.0 = vec![0.0; m];
+            }
             axpy(r, 1.0, &c);
             axpy(&mut grp.0, 1.0, &c);
             grp.1 += w;
@@ -1534,7 +1538,7 @@ impl<'a> RomPath<'a> {
                 }
             }
         }
-        for (re, wsum) in groups.values() {
+        for (re, wsum) in &groups {
             if *wsum > 0.0 {
                 *scale_sq += re.iter().map(|x| x * x).sum::<f64>() * ngp / wsum;
             }

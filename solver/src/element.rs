@@ -320,17 +320,7 @@ fn residual_impl<D: Scalar, M: Hyperelastic>(
 /// linearised state's). The quadrature-level kernel of [`tangent_with`] and of reduced models
 /// that sample quadrature points.
 pub fn point_tangent<M: Hyperelastic>(mat: &M, params: &[f64], fm: &M3<f64>, fi: &M3<f64>, j: f64, p: f64, pj_k: f64) -> (f64, M3<f64>, [[f64; 9]; 9]) {
-    let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
-    let jm23 = j.powf(-2.0 / 3.0);
-    let i1b = jm23 * i1;
-    let [w, w1, w2] = mat.w_iso(params, i1b);
-    // dĪ1/dF and the material tangent A = W2 g⊗g + W1 d²Ī1/dF²
-    let mut gb = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for cap in 0..3 {
-            gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
-        }
-    }
+    let (w, pk, [_, w1, w2], i1, jm23, gb) = point_stress_parts(mat, params, fm, fi, j, p);
     let mut a = [[0.0f64; 9]; 9];
     for i in 0..3 {
         for cj in 0..3 {
@@ -344,13 +334,38 @@ pub fn point_tangent<M: Hyperelastic>(mat: &M, params: &[f64], fm: &M3<f64>, fi:
             }
         }
     }
+    (w, pk, a)
+}
+
+/// [`point_tangent`] without the tangent: (W_iso, P).
+pub fn point_stress<M: Hyperelastic>(mat: &M, params: &[f64], fm: &M3<f64>, fi: &M3<f64>, j: f64, p: f64) -> (f64, M3<f64>) {
+    let (w, pk, ..) = point_stress_parts(mat, params, fm, fi, j, p);
+    (w, pk)
+}
+
+/// (W_iso, P, [W, W', W''] of Ī1, I1, J^(−2/3), dĪ1/dF) at a point.
+#[allow(clippy::type_complexity)]
+#[inline]
+fn point_stress_parts<M: Hyperelastic>(mat: &M, params: &[f64], fm: &M3<f64>, fi: &M3<f64>, j: f64, p: f64) -> (f64, M3<f64>, [f64; 3], f64, f64, M3<f64>) {
+    let i1: f64 = (0..3).map(|i| (0..3).map(|k| fm[i][k] * fm[i][k]).sum::<f64>()).sum();
+    let jm23 = j.powf(-2.0 / 3.0);
+    let i1b = jm23 * i1;
+    let ws = mat.w_iso(params, i1b);
+    let w1 = ws[1];
+    // dĪ1/dF (the material tangent is A = W2 g⊗g + W1 d²Ī1/dF²)
+    let mut gb = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for cap in 0..3 {
+            gb[i][cap] = jm23 * (2.0 * fm[i][cap] - (2.0 / 3.0) * i1 * fi[cap][i]);
+        }
+    }
     let mut pk = [[0.0; 3]; 3];
     for i in 0..3 {
         for cap in 0..3 {
             pk[i][cap] = w1 * gb[i][cap] + p * j * fi[cap][i];
         }
     }
-    (w, pk, a)
+    (ws[0], pk, ws, i1, jm23, gb)
 }
 
 /// A given pressure's value at a quadrature point of basis values `q` (P0: the first only).

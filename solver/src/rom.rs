@@ -944,9 +944,8 @@ pub struct RomPath<'a> {
     rule: HexRule,
     /// the reduced pressure space's data on this geometry and sample
     mixed: Option<Mixed>,
-    /// J_e = ∂u_e/∂z of each sampled element, then of each cavity face and boundary edge, where
-    /// it does not depend on the state (no node on a rigid body or a rotating periodic pair);
-    /// None where it does (rebuilt at each evaluation)
+    /// J_e = ∂u_e/∂z of each sampled element where it does not depend on the state (no node on
+    /// a rigid body or a rotating periodic pair); None where it does (rebuilt at each evaluation)
     jac_const: Vec<Option<Vec<f64>>>,
     /// the state of the last tangent evaluation (z, λ), which `outputs` reads instead of
     /// evaluating again
@@ -955,6 +954,8 @@ pub struct RomPath<'a> {
     elem_items: Vec<usize>,
     /// a quadrature-level sample's per-design data
     points: Option<PointSample>,
+    /// the cavity's surface-node data
+    cavity: Option<CavityProj>,
 }
 
 /// K += α A B where A B is symmetric: only its lower triangle is computed, into the lower
@@ -998,6 +999,111 @@ struct PointSample {
     n_const: usize,
     /// G of order[..n_const], stacked (9·n_const × m, row-major)
     g_const: Vec<f64>,
+    /// G of order[n_const..] from their elements' static nodes only, stacked likewise (the
+    /// other nodes' sparse rows of J are added at each evaluation)
+    g_dyn_static: Vec<f64>,
+    /// per element item, its nodes whose rows of J depend on the state: (local index, node)
+    dyn_nodes: Vec<Vec<(usize, usize)>>,
+}
+
+/// Runs `$body` (a call of an `#[inline(always)]` function) compiled with AVX2 and FMA where
+/// the CPU has them (detected once at run time), else as compiled: the reduced model's hot
+/// loops over m columns vectorise 2× wider.
+macro_rules! simd_dispatch {
+    ($body:expr) => {{
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx2,fma")]
+            unsafe fn wide<R>(f: impl FnOnce() -> R) -> R {
+                f()
+            }
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the features were detected on this CPU
+                return unsafe { wide(|| $body) };
+            }
+        }
+        $body
+    }};
+}
+
+/// H Φ for H of skew 3 × 3 node blocks (CSR: `row_ptr`, (column node, block) in `row_ent`,
+/// block vectors `vb`): row block a += Σ_b v_ab × Φ_b, Φ's rows in `phi_static` (nodes below
+/// `nst`) and `phi_dyn` (3 rows of m per node, row-major).
+#[allow(clippy::too_many_arguments)]
+fn skew_blocks_times(row_ptr: &[usize], row_ent: &[(u32, u32)], vb: &[[f64; 3]], phi_static: &[f64], phi_dyn: &[f64], nst: usize, m: usize, out: &mut [f64]) {
+    simd_dispatch!(skew_blocks_times_impl(row_ptr, row_ent, vb, phi_static, phi_dyn, nst, m, out))
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn skew_blocks_times_impl(row_ptr: &[usize], row_ent: &[(u32, u32)], vb: &[[f64; 3]], phi_static: &[f64], phi_dyn: &[f64], nst: usize, m: usize, out: &mut [f64]) {
+    for a in 0..row_ptr.len() - 1 {
+        let o = &mut out[3 * a * m..3 * (a + 1) * m];
+        let (o0, rest) = o.split_at_mut(m);
+        let (o1, o2) = rest.split_at_mut(m);
+        for &(b, id) in &row_ent[row_ptr[a]..row_ptr[a + 1]] {
+            let v = vb[id as usize];
+            let b = b as usize;
+            let w = if b < nst { &phi_static[3 * b * m..3 * (b + 1) * m] } else { &phi_dyn[3 * (b - nst) * m..3 * (b - nst + 1) * m] };
+            let (w0, w1, w2) = (&w[..m], &w[m..2 * m], &w[2 * m..3 * m]);
+            // skew(v) w = v × w
+            for j in 0..m {
+                o0[j] += v[1] * w2[j] - v[2] * w1[j];
+                o1[j] += v[2] * w0[j] - v[0] * w2[j];
+                o2[j] += v[0] * w1[j] - v[1] * w0[j];
+            }
+        }
+    }
+}
+
+/// A sampled point's reduced force c = Gᵀ p_w (p_w = the weighted P, row-major) in one pass
+/// over the columns of G (9 × m, row-major).
+fn point_force_columns(g: &[f64], m: usize, pw: &[f64; 9], c: &mut [f64]) {
+    simd_dispatch!(point_force_columns_impl(g, m, pw, c))
+}
+
+#[inline(always)]
+fn point_force_columns_impl(g: &[f64], m: usize, pw: &[f64; 9], c: &mut [f64]) {
+    let g: [&[f64]; 9] = std::array::from_fn(|r| &g[r * m..(r + 1) * m]);
+    let c = &mut c[..m];
+    for col in 0..m {
+        let mut s = 0.0;
+        for r in 0..9 {
+            s += pw[r] * g[r][col];
+        }
+        c[col] = s;
+    }
+}
+
+/// [`point_force_columns`] with the tangent's terms in the same pass: the rows of A_w G
+/// (9 × m, into `ag`) and ∂J/∂z = Gᵀ f_v (into `dj`, f_v = J F⁻ᵀ row-major).
+#[allow(clippy::too_many_arguments)]
+fn point_tangent_columns(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9], fv: &[f64; 9], c: &mut [f64], dj: &mut [f64], ag: &mut [f64]) {
+    simd_dispatch!(point_tangent_columns_impl(g, m, pw, wa, fv, c, dj, ag))
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn point_tangent_columns_impl(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9], fv: &[f64; 9], c: &mut [f64], dj: &mut [f64], ag: &mut [f64]) {
+    let g: [&[f64]; 9] = std::array::from_fn(|r| &g[r * m..(r + 1) * m]);
+    let (c, dj, ag) = (&mut c[..m], &mut dj[..m], &mut ag[..9 * m]);
+    for col in 0..m {
+        let gc: [f64; 9] = std::array::from_fn(|r| g[r][col]);
+        let (mut s, mut d) = (0.0, 0.0);
+        for r in 0..9 {
+            s += pw[r] * gc[r];
+            d += fv[r] * gc[r];
+        }
+        c[col] = s;
+        dj[col] = d;
+        for (rr, row) in wa.iter().enumerate() {
+            let mut v = 0.0;
+            for ss in 0..9 {
+                v += row[ss] * gc[ss];
+            }
+            ag[rr * m + col] = v;
+        }
+    }
 }
 
 /// G = ∂F/∂z (9 × m, row-major) at a point of gradients `grad` from its element's
@@ -1015,6 +1121,183 @@ fn point_g(grad: &[[f64; 3]], jac: &[f64], m: usize, out: &mut [f64]) {
                 }
             }
         }
+    }
+}
+
+/// The cavity's exact volume terms in reduced coordinates, over the cavity's surface nodes
+/// (the wall faces' and boundary edges' nodes): V, ∂V/∂z = Φ_sᵀ g and ∂²V/∂z² = Φ_sᵀ H Φ_s with
+/// g and H assembled on the surface nodes. H's 3 × 3 node blocks are skew on the faces
+/// ([`surface::face_volume_hessian_skew`]), so H Φ_s costs 6 row operations per block, and the
+/// product with Φ_sᵀ is one matrix product over the assembled rows (not one per face: each node
+/// is shared by up to four faces).
+struct CavityProj {
+    /// mesh node of each surface node: those whose rows of J = ∂u/∂z do not depend on the state
+    /// first (`n_static` of them), then the others (rebuilt at each evaluation)
+    nodes: Vec<usize>,
+    n_static: usize,
+    /// rows of J of the static nodes (3 n_static × m, row-major)
+    phi_static: Vec<f64>,
+    /// each face's and each edge's nodes as surface-node indices
+    faces: Vec<Vec<u32>>,
+    edges: Vec<Vec<u32>>,
+    /// per face, the skew block of each node pair (d, e) (nf × nf)
+    face_blocks: Vec<Vec<u32>>,
+    /// the blocks of each surface node's row: (column node, block), CSR
+    row_ptr: Vec<usize>,
+    row_ent: Vec<(u32, u32)>,
+    n_blocks: usize,
+}
+
+impl CavityProj {
+    fn new(red: &Reduction, cav: &surface::Cavity, is_static: &dyn Fn(usize) -> bool, kin0: &[BodyKin]) -> CavityProj {
+        let mut seen = std::collections::BTreeSet::new();
+        for n in cav.face_nodes.iter().flatten().chain(cav.edges.iter().flat_map(|e| e.0.iter())) {
+            seen.insert(*n);
+        }
+        let (mut nodes, dynamic): (Vec<usize>, Vec<usize>) = seen.into_iter().partition(|&n| is_static(n));
+        let n_static = nodes.len();
+        nodes.extend(dynamic);
+        let local: std::collections::HashMap<usize, u32> = nodes.iter().enumerate().map(|(i, &n)| (n, i as u32)).collect();
+        let faces: Vec<Vec<u32>> = cav.face_nodes.iter().map(|f| f.iter().map(|n| local[n]).collect()).collect();
+        let edges: Vec<Vec<u32>> = cav.edges.iter().map(|e| e.0.iter().map(|n| local[n]).collect()).collect();
+        let mut ids: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+        let mut face_blocks = Vec::with_capacity(faces.len());
+        for f in &faces {
+            let mut b = Vec::with_capacity(f.len() * f.len());
+            for &d in f {
+                for &e in f {
+                    let next = ids.len() as u32;
+                    b.push(*ids.entry((d, e)).or_insert(next));
+                }
+            }
+            face_blocks.push(b);
+        }
+        let n_blocks = ids.len();
+        let mut rows: Vec<Vec<(u32, u32)>> = vec![Vec::new(); nodes.len()];
+        for (&(d, e), &id) in &ids {
+            rows[d as usize].push((e, id));
+        }
+        let mut row_ptr = vec![0];
+        let mut row_ent = Vec::with_capacity(n_blocks);
+        for mut r in rows {
+            r.sort_unstable();
+            row_ent.extend(r);
+            row_ptr.push(row_ent.len());
+        }
+        let (mut scratch, mut phi_static) = (Vec::new(), Vec::new());
+        red.jacobian(&nodes[..n_static], kin0, &mut scratch, &mut phi_static);
+        CavityProj { nodes, n_static, phi_static, faces, edges, face_blocks, row_ptr, row_ent, n_blocks }
+    }
+
+    /// Adds the cavity terms at displacement u (bodies at `kin`, pressure p) into r (−p ∂V/∂z),
+    /// r_body (the pressure forces at rigid-body nodes) and kl (the lower triangle of
+    /// −p ∂²V/∂z², when given and p ≠ 0). Returns (V, ∂V/∂z).
+    #[allow(clippy::too_many_arguments)]
+    fn add(&self, red: &Reduction, cav: &surface::Cavity, u: &[[f64; 3]], kin: &[BodyKin], p: f64, r: &mut [f64], r_body: &mut [f64], kl: Option<&mut Mat<f64>>) -> (f64, Vec<f64>) {
+        let model = red.model;
+        let x0 = &model.mesh.nodes;
+        let m = red.dim();
+        let ns = self.nodes.len();
+        let nst = self.n_static;
+        let xs: Vec<[f64; 3]> = self.nodes.iter().map(|&n| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]]).collect();
+        let (mut scratch, mut phi_dyn) = (Vec::new(), Vec::new());
+        red.jacobian(&self.nodes[nst..], kin, &mut scratch, &mut phi_dyn);
+        let row = |a: usize| -> &[f64] {
+            if a < nst {
+                &self.phi_static[3 * a * m..3 * (a + 1) * m]
+            } else {
+                &phi_dyn[3 * (a - nst) * m..3 * (a - nst + 1) * m]
+            }
+        };
+        // volume and its gradient on the surface nodes
+        let mut volume = 0.0;
+        let mut g = vec![0.0; 3 * ns];
+        let mut gl = Vec::new();
+        let mut xl = Vec::new();
+        for (loc, is_face) in self.faces.iter().map(|f| (f, true)).chain(self.edges.iter().map(|e| (e, false))) {
+            xl.clear();
+            xl.extend(loc.iter().map(|&a| xs[a as usize]));
+            gl.clear();
+            gl.resize(3 * loc.len(), 0.0);
+            volume += if is_face { surface::face_volume_grad(&cav.rule, &xl, &mut gl) } else { surface::edge_volume_grad(&xl, &mut gl) };
+            for (d, &a) in loc.iter().enumerate() {
+                for c in 0..3 {
+                    g[3 * a as usize + c] += gl[3 * d + c];
+                }
+            }
+        }
+        let mut dvol = vec![0.0; m];
+        {
+            let mut dm = faer::MatMut::from_column_major_slice_mut(&mut dvol, m, 1);
+            let gs = faer::MatRef::from_column_major_slice(&g[..3 * nst], 3 * nst, 1);
+            faer::linalg::matmul::matmul(dm.as_mut(), faer::Accum::Replace, faer::MatRef::from_row_major_slice(&self.phi_static, 3 * nst, m).transpose(), gs, 1.0, faer::Par::Seq);
+            if ns > nst {
+                let gd = faer::MatRef::from_column_major_slice(&g[3 * nst..], 3 * (ns - nst), 1);
+                faer::linalg::matmul::matmul(dm, faer::Accum::Add, faer::MatRef::from_row_major_slice(&phi_dyn, 3 * (ns - nst), m).transpose(), gd, 1.0, faer::Par::Seq);
+            }
+        }
+        for (ri, dv) in r.iter_mut().zip(&dvol) {
+            *ri -= p * dv;
+        }
+        if p == 0.0 {
+            return (volume, dvol);
+        }
+        add_body_nodal(model, &self.nodes, &g, -p, r_body);
+        let Some(kl) = kl else { return (volume, dvol) };
+        // H on the surface nodes: the faces' skew blocks, then H Φ_s
+        let mut vb = vec![[0.0f64; 3]; self.n_blocks];
+        let mut vl = Vec::new();
+        for (loc, ids) in self.faces.iter().zip(&self.face_blocks) {
+            xl.clear();
+            xl.extend(loc.iter().map(|&a| xs[a as usize]));
+            vl.resize(loc.len() * loc.len(), [0.0; 3]);
+            surface::face_volume_hessian_skew(&cav.rule, &xl, &mut vl);
+            for (v, &id) in vl.iter().zip(ids) {
+                let b = &mut vb[id as usize];
+                b[0] += v[0];
+                b[1] += v[1];
+                b[2] += v[2];
+            }
+        }
+        let mut hphi = vec![0.0; 3 * ns * m];
+        let axpy = |o: &mut [f64], c: f64, x: &[f64]| {
+            for (a, b) in o.iter_mut().zip(x) {
+                *a += c * b;
+            }
+        };
+        skew_blocks_times(&self.row_ptr, &self.row_ent, &vb, &self.phi_static, &phi_dyn, nst, m, &mut hphi);
+        // the boundary edges' cap terms (few): dense blocks
+        let mut h = Vec::new();
+        for loc in &self.edges {
+            xl.clear();
+            xl.extend(loc.iter().map(|&a| xs[a as usize]));
+            let nd = 3 * loc.len();
+            h.clear();
+            h.resize(nd * nd, 0.0);
+            surface::edge_volume_hessian(&xl, &mut h);
+            for (d, &a) in loc.iter().enumerate() {
+                for (e, &b) in loc.iter().enumerate() {
+                    let w = row(b as usize);
+                    for i in 0..3 {
+                        let o = &mut hphi[(3 * a as usize + i) * m..(3 * a as usize + i + 1) * m];
+                        for jj in 0..3 {
+                            let c = h[(3 * d + i) * nd + 3 * e + jj];
+                            if c != 0.0 {
+                                axpy(o, c, &w[jj * m..(jj + 1) * m]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
+            faer::MatRef::from_row_major_slice(v, rows, m)
+        }
+        lower_product(kl, rm(&self.phi_static, 3 * nst, m).transpose(), rm(&hphi[..3 * nst * m], 3 * nst, m), -p);
+        if ns > nst {
+            lower_product(kl, rm(&phi_dyn, 3 * (ns - nst), m).transpose(), rm(&hphi[3 * nst * m..], 3 * (ns - nst), m), -p);
+        }
+        (volume, dvol)
     }
 }
 
@@ -1111,16 +1394,22 @@ impl<'a> RomPath<'a> {
         // path whose prescribed values do not move, its rows of J are constant too
         let presc_fixed = from.presc == to.presc;
         let kin0 = model.dofs.body_kinematics(&vec![0.0; model.n_reduced()], &from.presc);
-        let linear = |nodes: &[usize]| {
-            nodes.iter().all(|&n| {
-                (0..3).all(|c| matches!(model.dofs.comps[3 * n + c], Comp::Free(_) | Comp::Presc(_) | Comp::Lin(..)) || (presc_fixed && matches!(model.dofs.comps[3 * n + c], Comp::Periodic(_))))
-            })
-        };
+        // a node's rows of J do not depend on the state (periodic ones: on the prescribed values,
+        // through the source node's rows)
+        fn static_comp(model: &Model, n: usize, c: usize, presc_fixed: bool) -> bool {
+            match model.dofs.comps[3 * n + c] {
+                Comp::Free(_) | Comp::Presc(_) | Comp::Lin(..) => true,
+                Comp::Periodic(k) => presc_fixed && (0..3).all(|j| static_comp(model, model.dofs.per_pairs[k as usize].0 as usize, j, presc_fixed)),
+                Comp::Rigid(_) => false,
+            }
+        }
+        let is_static = |n: usize| (0..3).all(|c| static_comp(model, n, c, presc_fixed));
+        let linear = |nodes: &[usize]| nodes.iter().all(|&n| is_static(n));
         let mut scratch = Vec::new();
         let mut jac_const = Vec::new();
         let elem_items = if sample.is_points() { sample.distinct_elements() } else { sample.elements.clone() };
-        let items = elem_items.iter().map(|&e| model.mesh.element(e)).chain(model.cavity.iter().flat_map(|c| c.face_nodes.iter().map(|v| v.as_slice()).chain(c.edges.iter().map(|e| e.0.as_slice()))));
-        for nodes in items {
+        let cavity = model.cavity.as_ref().map(|cav| CavityProj::new(&red, cav, &is_static, &kin0));
+        for nodes in elem_items.iter().map(|&e| model.mesh.element(e)) {
             jac_const.push(linear(nodes).then(|| {
                 let mut j = Vec::new();
                 red.jacobian(nodes, &kin0, &mut scratch, &mut j);
@@ -1154,11 +1443,22 @@ impl<'a> RomPath<'a> {
             for (slot, &i) in order[..n_const].iter().enumerate() {
                 point_g(&grad[i], jac_const[item[i]].as_deref().unwrap_or(&[]), m, &mut g_const[9 * slot * m..9 * (slot + 1) * m]);
             }
-            Some(PointSample { item, grad, wj0, phi, rigid, order, n_const, g_const })
+            let dyn_nodes: Vec<Vec<(usize, usize)>> =
+                elem_items.iter().map(|&e| model.mesh.element(e).iter().enumerate().filter(|&(_, &nd)| !is_static(nd)).map(|(a, &nd)| (a, nd)).collect()).collect();
+            let mut g_dyn_static = vec![0.0; 9 * (item.len() - n_const) * m];
+            let mut jac = Vec::new();
+            for (d, &i) in order[n_const..].iter().enumerate() {
+                red.jacobian(model.mesh.element(elem_items[item[i]]), &kin0, &mut scratch, &mut jac);
+                for &(a, _) in &dyn_nodes[item[i]] {
+                    jac[3 * a * m..3 * (a + 1) * m].iter_mut().for_each(|v| *v = 0.0);
+                }
+                point_g(&grad[i], &jac, m, &mut g_dyn_static[9 * d * m..9 * (d + 1) * m]);
+            }
+            Some(PointSample { item, grad, wj0, phi, rigid, order, n_const, g_const, g_dyn_static, dyn_nodes })
         } else {
             None
         };
-        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed, jac_const, last: Default::default(), elem_items, points })
+        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed, jac_const, last: Default::default(), elem_items, points, cavity })
     }
 
     /// J of item `i` (see `jac_const`): the cached one, or built into `buf`.
@@ -1199,50 +1499,11 @@ impl<'a> RomPath<'a> {
             None => self.internal_elements(&u, &kin, &mut r, kz.as_mut(), &mut r_body, &mut energy, &mut min_det, &mut scale_sq)?,
         }
         // cavity: exact volume, −p ∂V/∂z and −p ∂²V/∂z² over every face and boundary edge
-        let mut volume = 0.0;
-        let mut dvol = vec![0.0; m];
         let p = loads.pressure;
-        if let Some(cav) = &model.cavity {
-            let items = cav.face_nodes.iter().map(|v| (v.as_slice(), true)).chain(cav.edges.iter().map(|e| (e.0.as_slice(), false)));
-            let mut g = Vec::new();
-            let mut h = Vec::new();
-            let mut gz = Mat::<f64>::zeros(m, 1);
-            let mut hj = Mat::<f64>::zeros(0, 0);
-            let n_sampled = self.elem_items.len();
-            for (c_i, (nodes, is_face)) in items.enumerate() {
-                let xs: Vec<[f64; 3]> = nodes.iter().map(|&n| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]]).collect();
-                let ml = 3 * xs.len();
-                g.clear();
-                g.resize(ml, 0.0);
-                volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
-                let jac = self.item_jacobian(n_sampled + c_i, nodes, &kin, &mut scratch, &mut jac);
-                let jm = faer::MatRef::from_row_major_slice(jac, ml, m);
-                let gm = faer::MatRef::from_column_major_slice(&g, ml, 1);
-                faer::linalg::matmul::matmul(gz.as_mut(), faer::Accum::Replace, jm.transpose(), gm, 1.0, faer::Par::Seq);
-                for i in 0..m {
-                    dvol[i] += gz[(i, 0)];
-                    r[i] -= p * gz[(i, 0)];
-                }
-                if p != 0.0 {
-                    add_body_nodal(model, nodes, &g, -p, &mut r_body);
-                    if let Some(kl) = kl.as_mut() {
-                        h.clear();
-                        h.resize(ml * ml, 0.0);
-                        if is_face {
-                            surface::face_volume_hessian(&cav.rule, &xs, &mut h);
-                        } else {
-                            surface::edge_volume_hessian(&xs, &mut h);
-                        }
-                        let hm = faer::MatRef::from_row_major_slice(&h, ml, ml);
-                        if hj.nrows() != ml {
-                            hj = Mat::<f64>::zeros(ml, m);
-                        }
-                        faer::linalg::matmul::matmul(hj.as_mut(), faer::Accum::Replace, hm, jm, 1.0, faer::Par::Seq);
-                        lower_product(kl, jm.transpose(), hj.as_ref(), -p);
-                    }
-                }
-            }
-        }
+        let (volume, dvol) = match (&model.cavity, &self.cavity) {
+            (Some(cav), Some(cp)) => cp.add(&self.red, cav, &u, &kin, p, &mut r, &mut r_body, kl.as_mut()),
+            _ => (0.0, vec![0.0; m]),
+        };
         let k = self.red.basis.k;
         let nb = self.red.basis.n;
         let zi = |i: usize| k + i - nb;
@@ -1447,17 +1708,58 @@ impl<'a> RomPath<'a> {
         // row-major 9 × m blocks: A G of every point, G of the state-dependent ones
         // (reused per thread: fresh multi-megabyte buffers cost page faults at every evaluation;
         // every entry used is overwritten below)
+        let kl = kz;
         let (mut ag, mut g_dyn) = POINT_BUFFERS.with(|b| std::mem::take(&mut *b.borrow_mut()));
         ag.resize(if want_k { 9 * n * m } else { 0 }, 0.0);
-        g_dyn.resize(9 * (n - ps.n_const) * m, 0.0);
-        let mut b_red = Mat::<f64>::zeros(if want_k { kp } else { 0 }, m);
-        let mut scratch = Vec::new();
-        let mut jac = Vec::new();
-        let mut jac_item = usize::MAX;
+        // G of the state-dependent points: the static nodes' part, then the others' sparse rows
+        g_dyn.clear();
+        g_dyn.extend_from_slice(&ps.g_dyn_static);
+        {
+            let x0 = &model.mesh.nodes;
+            let (k, nb) = (self.red.basis.k, self.red.basis.n);
+            let mut rows: Vec<Vec<(u32, f64)>> = Vec::new();
+            let mut item = usize::MAX;
+            for (d, &i) in ps.order[ps.n_const..].iter().enumerate() {
+                let dn = &ps.dyn_nodes[ps.item[i]];
+                if item != ps.item[i] {
+                    item = ps.item[i];
+                    rows.resize(3 * dn.len(), Vec::new());
+                    for (t_, &(_, node)) in dn.iter().enumerate() {
+                        for cc in 0..3 {
+                            rows[3 * t_ + cc].clear();
+                            model.dofs.row(x0, kin, node, cc, &mut rows[3 * t_ + cc]);
+                        }
+                    }
+                }
+                let gd = &mut g_dyn[9 * d * m..9 * (d + 1) * m];
+                for (t_, &(a_, _)) in dn.iter().enumerate() {
+                    for cc in 0..3 {
+                        for cj in 0..3 {
+                            let coef = ps.grad[i][a_][cj];
+                            if coef == 0.0 {
+                                continue;
+                            }
+                            let grow = &mut gd[(3 * cc + cj) * m..(3 * cc + cj + 1) * m];
+                            for &(ii, cf) in &rows[3 * t_ + cc] {
+                                let ii = ii as usize;
+                                if ii < nb {
+                                    for (x, y) in grow.iter_mut().zip(self.red.phi_row(ii)) {
+                                        *x += coef * cf * y;
+                                    }
+                                } else {
+                                    grow[k + ii - nb] += coef * cf;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let mut djs = vec![0.0; if want_k { n * m } else { 0 }];
+        let mut psiw = vec![0.0; if want_k { n * kp } else { 0 }];
         let nd = 3 * model.mesh.kind.nodes_per_element();
         let mut fnod = vec![0.0; nd];
         let mut c = vec![0.0; m];
-        let mut dj = vec![0.0; m];
         // per element item: the sum of its points' weighted reduced forces and their weight
         // (indexed by item, not hashed: the sum's order, and so the Newton test, is deterministic)
         let mut groups: Vec<(Vec<f64>, f64)> = vec![(Vec::new(), 0.0); self.elem_items.len()];
@@ -1473,26 +1775,34 @@ impl<'a> RomPath<'a> {
             let g: &[f64] = if slot < ps.n_const {
                 &ps.g_const[9 * slot * m..9 * (slot + 1) * m]
             } else {
-                if jac_item != ps.item[i] {
-                    self.red.jacobian(conn, kin, &mut scratch, &mut jac);
-                    jac_item = ps.item[i];
-                }
                 let d = slot - ps.n_const;
-                point_g(&ps.grad[i], &jac, m, &mut g_dyn[9 * d * m..9 * (d + 1) * m]);
                 &g_dyn[9 * d * m..9 * (d + 1) * m]
             };
-            let grow = |rr: usize| &g[rr * m..(rr + 1) * m];
             let (f, fi, j) = &kinem[i];
             let p: f64 = pcs[i].iter().zip(&ps.phi[i]).map(|(a, b)| a * b).sum();
-            let (wiso, pk, a) = element::point_tangent(&model.material, &model.params, f, fi, *j, p, p * j);
             let w = self.sample.weights[i];
             let wj0 = ps.wj0[i];
-            *energy += w * wj0 * wiso;
-            let pf = [pk[0][0], pk[0][1], pk[0][2], pk[1][0], pk[1][1], pk[1][2], pk[2][0], pk[2][1], pk[2][2]];
-            c.iter_mut().for_each(|v| *v = 0.0);
-            for (rr, &pv) in pf.iter().enumerate() {
-                axpy(&mut c, pv * wj0 * w, grow(rr));
-            }
+            let wt = w * wj0;
+            let (wiso, pk) = if want_k {
+                let (wiso, pk, a) = element::point_tangent(&model.material, &model.params, f, fi, *j, p, p * j);
+                let pw = [pk[0][0], pk[0][1], pk[0][2], pk[1][0], pk[1][1], pk[1][2], pk[2][0], pk[2][1], pk[2][2]].map(|v| v * wt);
+                let wa = a.map(|row| row.map(|v| v * wt));
+                // ∂J/∂z = J F⁻ᵀ : G (F⁻ᵀ[i][J] = F⁻¹[J][i])
+                let fv = [fi[0][0], fi[1][0], fi[2][0], fi[0][1], fi[1][1], fi[2][1], fi[0][2], fi[1][2], fi[2][2]].map(|v| v * j);
+                let cs = slot;
+                point_tangent_columns(g, m, &pw, &wa, &fv, &mut c, &mut djs[cs * m..(cs + 1) * m], &mut ag[9 * cs * m..9 * (cs + 1) * m]);
+                let pe = pb.block(e);
+                for jp in 0..kp {
+                    psiw[cs * kp + jp] = (0..np).map(|rr| pe[rr * kp + jp] * ps.phi[i][rr]).sum::<f64>() * wt;
+                }
+                (wiso, pk)
+            } else {
+                let (wiso, pk) = element::point_stress(&model.material, &model.params, f, fi, *j, p);
+                let pw = [pk[0][0], pk[0][1], pk[0][2], pk[1][0], pk[1][1], pk[1][2], pk[2][0], pk[2][1], pk[2][2]].map(|v| v * wt);
+                point_force_columns(g, m, &pw, &mut c);
+                (wiso, pk)
+            };
+            *energy += wt * wiso;
             let grp = &mut groups[ps.item[i]];
             if grp.0.is_empty() {
                 grp.0 = vec![0.0; m];
@@ -1508,52 +1818,26 @@ impl<'a> RomPath<'a> {
                 }
                 add_body_nodal(model, conn, &fnod, w, r_body);
             }
-            if want_k {
-                let wt = w * wj0;
-                let out = &mut ag[9 * slot * m..9 * (slot + 1) * m];
-                for (rr, arow) in a.iter().enumerate() {
-                    let o = &mut out[rr * m..(rr + 1) * m];
-                    let a0 = wt * arow[0];
-                    for (x, y) in o.iter_mut().zip(grow(0)) {
-                        *x = a0 * y;
-                    }
-                    for (ss, &av) in arow.iter().enumerate().skip(1) {
-                        if av != 0.0 {
-                            axpy(o, wt * av, grow(ss));
-                        }
-                    }
-                }
-                // ∂J/∂z = J F⁻ᵀ : G (F⁻ᵀ[i][J] = F⁻¹[J][i])
-                let fv = [fi[0][0], fi[1][0], fi[2][0], fi[0][1], fi[1][1], fi[2][1], fi[0][2], fi[1][2], fi[2][2]];
-                dj.iter_mut().for_each(|v| *v = 0.0);
-                for (rr, &fvv) in fv.iter().enumerate() {
-                    axpy(&mut dj, j * fvv, grow(rr));
-                }
-                let pe = pb.block(e);
-                for jp in 0..kp {
-                    let psi: f64 = (0..np).map(|rr| pe[rr * kp + jp] * ps.phi[i][rr]).sum::<f64>() * wt;
-                    for col in 0..m {
-                        b_red[(jp, col)] += psi * dj[col];
-                    }
-                }
+        }
+        if let Some((kz, kl)) = kl {
+            fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
+                faer::MatRef::from_row_major_slice(v, rows, m)
             }
+            let nc = 9 * ps.n_const;
+            lower_product(kl, rm(&ps.g_const, nc, m).transpose(), rm(&ag[..nc * m], nc, m), 1.0);
+            if n > ps.n_const {
+                lower_product(kl, rm(&g_dyn, 9 * n - nc, m).transpose(), rm(&ag[nc * m..], 9 * n - nc, m), 1.0);
+            }
+            // B = Σ (w Ψ_eᵀ φ) ⊗ ∂J/∂z over the points
+            let mut b_red = Mat::<f64>::zeros(kp, m);
+            faer::linalg::matmul::matmul(b_red.as_mut(), faer::Accum::Replace, rm(&psiw, n, kp).transpose(), rm(&djs, n, m), 1.0, faer::Par::Seq);
+            let cm = &mx.mass_inv * &h * &mx.mass_inv;
+            faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, b_red.transpose(), (&cm * &b_red).as_ref(), 1.0, faer::Par::Seq);
         }
         for (re, wsum) in &groups {
             if *wsum > 0.0 {
                 *scale_sq += re.iter().map(|x| x * x).sum::<f64>() * ngp / wsum;
             }
-        }
-        if let Some((kz, kl)) = kz {
-            let nc = 9 * ps.n_const;
-            fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
-                faer::MatRef::from_row_major_slice(v, rows, m)
-            }
-            lower_product(kl, rm(&ps.g_const, nc, m).transpose(), rm(&ag[..nc * m], nc, m), 1.0);
-            if n > ps.n_const {
-                lower_product(kl, rm(&g_dyn, 9 * n - nc, m).transpose(), rm(&ag[nc * m..], 9 * n - nc, m), 1.0);
-            }
-            let cm = &mx.mass_inv * &h * &mx.mass_inv;
-            faer::linalg::matmul::matmul(kz.as_mut(), faer::Accum::Add, b_red.transpose(), (&cm * &b_red).as_ref(), 1.0, faer::Par::Seq);
         }
         POINT_BUFFERS.with(|b| *b.borrow_mut() = (ag, g_dyn));
         Ok(())
@@ -1779,11 +2063,14 @@ fn reduced_pressure(
     let c = coef(&b);
     let mut rr = vec![0.0; kp];
     let mut h = Mat::<f64>::zeros(kp, kp);
+    let mut th = vec![0.0; np];
+    let mut psi = vec![0.0; kp];
     for (s_i, (&e, &w)) in sample.elements.iter().zip(&sample.weights).enumerate() {
         let pe = pb.block(e);
-        let th: Vec<f64> = (0..np).map(|r| pe[r * kp..(r + 1) * kp].iter().zip(&c).map(|(a, b)| a * b).sum()).collect();
-        let mut re = vec![0.0; np];
-        let mut he = vec![0.0; np * np];
+        for (r, t) in th.iter_mut().enumerate() {
+            *t = pe[r * kp..(r + 1) * kp].iter().zip(&c).map(|(a, b)| a * b).sum();
+        }
+        // per quadrature point: ψ = Ψ_eᵀ φ, then rr += w U' wj ψ and H += w U'' wj ψ ψᵀ
         for (phi, wj) in &mx.quad[s_i] {
             let t: f64 = (0..np).map(|r| th[r] * phi[r]).sum();
             if !(t > 0.0) {
@@ -1792,21 +2079,18 @@ fn reduced_pressure(
             *min_det = min_det.min(t);
             let [uv, up, upp] = model.material.u_vol(&model.params, t);
             *energy += w * uv * wj;
-            for r in 0..np {
-                re[r] += phi[r] * up * wj;
-                for c2 in 0..np {
-                    he[r * np + c2] += phi[r] * phi[c2] * upp * wj;
+            for (j, v) in psi.iter_mut().enumerate() {
+                *v = (0..np).map(|r| pe[r * kp + j] * phi[r]).sum();
+            }
+            let (cr, ch) = (w * up * wj, w * upp * wj);
+            for j in 0..kp {
+                rr[j] += cr * psi[j];
+                let hj = ch * psi[j];
+                for i in 0..kp {
+                    h[(i, j)] += hj * psi[i];
                 }
             }
         }
-        for r in 0..np {
-            for (ri, psi) in rr.iter_mut().zip(&pe[r * kp..(r + 1) * kp]) {
-                *ri += w * psi * re[r];
-            }
-        }
-        let pm = faer::MatRef::from_row_major_slice(pe, np, kp);
-        let hm = faer::MatRef::from_row_major_slice(&he, np, np);
-        faer::linalg::matmul::matmul(h.as_mut(), faer::Accum::Add, pm.transpose(), (hm * pm).as_ref(), w, faer::Par::Seq);
     }
     let pi = coef(&rr);
     let pcs = sample.elements.iter().map(|&e| element_pressure(pb, e, &pi));

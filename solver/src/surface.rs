@@ -114,7 +114,23 @@ fn skew(v: [f64; 3]) -> [[f64; 3]; 3] {
 pub fn face_volume_hessian(rule: &FaceRule, x: &[[f64; 3]], h: &mut [f64]) {
     let nf = x.len();
     let nd = 3 * nf;
-    h.iter_mut().for_each(|v| *v = 0.0);
+    let mut v = vec![[0.0; 3]; nf * nf];
+    face_volume_hessian_skew(rule, x, &mut v);
+    for d in 0..nf {
+        for e in 0..nf {
+            let b = skew(v[d * nf + e]);
+            for i in 0..3 {
+                h[(3 * d + i) * nd + 3 * e..(3 * d + i) * nd + 3 * e + 3].copy_from_slice(&b[i]);
+            }
+        }
+    }
+}
+
+/// The face volume Hessian's 3 × 3 blocks, each skew: block (d, e) = skew(v[d nf + e]), i.e.
+/// ∂²V/∂x_d∂x_e · w = v_de × w (v_ed = −v_de, v_dd = 0).
+pub fn face_volume_hessian_skew(rule: &FaceRule, x: &[[f64; 3]], v: &mut [[f64; 3]]) {
+    let nf = x.len();
+    v.iter_mut().for_each(|b| *b = [0.0; 3]);
     for (g, w) in rule.weights.iter().enumerate() {
         let (n, dn) = (&rule.n[g], &rule.dn[g]);
         let mut p = [0.0; 3];
@@ -130,19 +146,21 @@ pub fn face_volume_hessian(rule: &FaceRule, x: &[[f64; 3]], h: &mut [f64]) {
         let c = -w / 3.0;
         // each 3×3 block is skew: c (k_st skew(a_t) + k_ss skew(a_s) + k_sx skew(x)) = skew(v)
         for d in 0..nf {
-            for e in 0..nf {
+            for e in d + 1..nf {
                 let k_st = -n[d] * dn[e][0] + dn[d][0] * n[e];
                 let k_ss = n[d] * dn[e][1] - dn[d][1] * n[e];
                 let k_sx = -dn[d][0] * dn[e][1] + dn[d][1] * dn[e][0];
-                let v: [f64; 3] = std::array::from_fn(|i| c * (k_st * a_t[i] + k_ss * a_s[i] + k_sx * p[i]));
-                let b = skew(v);
+                let b = &mut v[d * nf + e];
                 for i in 0..3 {
-                    let row = &mut h[(3 * d + i) * nd + 3 * e..(3 * d + i) * nd + 3 * e + 3];
-                    for j in 0..3 {
-                        row[j] += b[i][j];
-                    }
+                    b[i] += c * (k_st * a_t[i] + k_ss * a_s[i] + k_sx * p[i]);
                 }
             }
+        }
+    }
+    for d in 0..nf {
+        for e in d + 1..nf {
+            let b = v[d * nf + e];
+            v[e * nf + d] = [-b[0], -b[1], -b[2]];
         }
     }
 }

@@ -344,6 +344,11 @@ impl SceneModel {
         let cavity = mesh.face_sets["cavity"].clone();
         let cavity_nodes = mesh.node_sets["cavity"].clone();
         let mut model = Model::new(mesh, opts.formulation, opts.material, &cons, Some(&cavity))?;
+        // the sparse tangent's setup is built where the full model will be solved (a reduced
+        // model evaluates the same mesh and constraints without it)
+        if opts.rom.is_none() {
+            model.prepare_sparse()?;
+        }
         if !opts.cap_load {
             if let Some(c) = model.cavity.as_mut() {
                 c.cap_load = false;

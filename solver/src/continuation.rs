@@ -1288,7 +1288,8 @@ impl<'a> LoadPath<'a> {
 pub(crate) fn elem_eval(e: ElementError) -> EvalFailure {
     match e {
         ElementError::Inverted(_) | ElementError::BadReference(_) => EvalFailure::Inversion,
-        ElementError::NonFinite(_) => EvalFailure::NonFinite,
+        // (a failed sparse setup: refused at model construction where the full tangent is used)
+        ElementError::NonFinite(_) | ElementError::Setup => EvalFailure::NonFinite,
     }
 }
 

@@ -74,6 +74,8 @@ pub enum ElementError {
     Inverted(usize),
     #[error("element {0} produced a non-finite value")]
     NonFinite(usize),
+    #[error("the sparse tangent's setup (ordering, symbolic analysis) failed")]
+    Setup,
 }
 
 /// Summary of one element evaluation.

@@ -148,6 +148,8 @@ pub enum SolveError {
     Singular,
     #[error("non-finite value in the solution")]
     NonFinite,
+    #[error("the sparse tangent's setup (ordering, symbolic analysis) failed")]
+    Setup,
 }
 
 /// A finite element model.
@@ -160,10 +162,9 @@ pub struct Model {
     pub params: Vec<f64>,
     pub dofs: DofMap,
     pub cavity: Option<Cavity>,
-    pattern: Pattern,
-    /// symbolic analysis of the tangent (fill-reducing ordering, elimination tree, supernodes),
-    /// shared by the Cholesky and the LBLᵀ factorisations
-    symbolic: Arc<SymbolicCholesky<u32>>,
+    /// the tangent's sparsity pattern and symbolic analysis, built on first use (a reduced-order
+    /// model evaluates the same mesh and constraints without them; see [`SparseSetup`])
+    sparse: std::sync::OnceLock<Result<SparseSetup, String>>,
     ordering: Ordering,
     symbolic_lu: std::sync::OnceLock<Option<(SymbolicSparseColMat<u32>, Vec<usize>, SymbolicLu<u32>)>>,
     /// Elements per parallel work unit (fixed: results do not depend on the thread count).
@@ -174,6 +175,14 @@ pub struct Model {
     buffers: std::sync::Mutex<Vec<Vec<f64>>>,
     /// Scatter tables of the cavity faces and edges.
     cavity_scatter: std::sync::OnceLock<Option<Vec<ElemScatter>>>,
+}
+
+/// The sparse tangent's structure: its pattern, in the order of the fill-reducing ordering, and
+/// the symbolic analysis (elimination tree, supernodes), shared by the Cholesky and the LBLᵀ
+/// factorisations.
+struct SparseSetup {
+    pattern: Pattern,
+    symbolic: Arc<SymbolicCholesky<u32>>,
 }
 
 /// Where each pair of an element's (local DOF → reduced DOF) terms lands in the CSC values.
@@ -190,9 +199,7 @@ impl Model {
         }
         let dofs = DofMap::build(&mesh.nodes, constraints)?;
         let cavity = cavity_faces.map(|f| Cavity::new(&mesh, f));
-        let pattern = build_pattern(&mesh, &dofs);
-        let ordering = Ordering::for_size(pattern.n);
-        let (pattern, symbolic) = symbolic_analysis(&pattern, ordering)?;
+        let ordering = Ordering::for_size(dofs.n_reduced());
         let rule = form.rule();
         let params = material.params();
         Ok(Model {
@@ -203,8 +210,7 @@ impl Model {
             params,
             dofs,
             cavity,
-            pattern,
-            symbolic,
+            sparse: std::sync::OnceLock::new(),
             ordering,
             symbolic_lu: std::sync::OnceLock::new(),
             chunk: 32,
@@ -216,23 +222,48 @@ impl Model {
 
     /// Redo the symbolic analysis with another fill-reducing ordering.
     pub fn set_ordering(&mut self, ordering: Ordering) -> Result<(), ModelError> {
-        let (pattern, symbolic) = symbolic_analysis(&self.pattern, ordering)?;
-        self.pattern = pattern;
-        self.symbolic = symbolic;
         self.ordering = ordering;
+        self.sparse = std::sync::OnceLock::new();
         self.scatter_cache = std::sync::OnceLock::new();
         self.cavity_scatter = std::sync::OnceLock::new();
         self.symbolic_lu = std::sync::OnceLock::new();
-        Ok(())
+        self.sparse_setup().map(|_| ())
     }
 
     pub fn ordering(&self) -> Ordering {
         self.ordering
     }
 
-    /// Entries of the Cholesky factor L (the fill of the ordering).
+    /// Builds the sparse tangent's pattern and symbolic analysis now (else on the first tangent
+    /// assembly or factorisation), reporting a failure as a model error: what a caller that will
+    /// assemble the full tangent does right after [`Model::new`].
+    pub fn prepare_sparse(&self) -> Result<(), ModelError> {
+        self.sparse_setup().map(|_| ())
+    }
+
+    /// The sparse tangent's pattern and symbolic analysis (built on the first call).
+    fn sparse_setup(&self) -> Result<&SparseSetup, ModelError> {
+        self.sparse
+            .get_or_init(|| {
+                let pattern = build_pattern(&self.mesh, &self.dofs);
+                symbolic_analysis(&pattern, self.ordering).map(|(pattern, symbolic)| SparseSetup { pattern, symbolic }).map_err(|e| e.to_string())
+            })
+            .as_ref()
+            .map_err(|e| ModelError::Symbolic(e.clone()))
+    }
+
+    /// The setup of a model that has assembled a tangent (its values exist only then).
+    fn assembled_setup(&self) -> &SparseSetup {
+        match self.sparse.get() {
+            Some(Ok(sp)) => sp,
+            // (unreachable: tangent values come from `assemble`, which builds the setup first)
+            _ => unreachable!("a tangent's values without the model's sparse setup"),
+        }
+    }
+
+    /// Entries of the Cholesky factor L (the fill of the ordering; 0 if the setup failed).
     pub fn factor_nnz(&self) -> usize {
-        self.symbolic.len_val()
+        self.sparse_setup().map_or(0, |sp| sp.symbolic.len_val())
     }
 
     pub fn n_reduced(&self) -> usize {
@@ -240,7 +271,7 @@ impl Model {
     }
 
     pub fn nnz(&self) -> usize {
-        self.pattern.row_idx.len()
+        self.sparse_setup().map_or(0, |sp| sp.pattern.row_idx.len())
     }
 
     /// Assemble residual (and tangent) at reduced state q under loads.
@@ -263,7 +294,8 @@ impl Model {
         let nd = 3 * nn;
         let ne = self.mesh.n_elements();
         let mut r_full = vec![0.0; 3 * x0.len()];
-        let mut kv = if want_k { Some(vec![0.0; self.pattern.row_idx.len()]) } else { None };
+        let sp = if want_k { Some(self.sparse_setup().map_err(|_| ElementError::Setup)?) } else { None };
+        let mut kv = sp.map(|sp| vec![0.0; sp.pattern.row_idx.len()]);
         let mut energy = 0.0;
         let mut min_det_f = f64::INFINITY;
         let mut f_int_sq = 0.0;
@@ -451,7 +483,7 @@ impl Model {
                 for a in 0..3 {
                     for bb in a..3 {
                         if let (crate::dofmap::BodyDof::Free(i), crate::dofmap::BodyDof::Free(j)) = (self.dofs.body_dofs[b][3 + a], self.dofs.body_dofs[b][3 + bb]) {
-                            kv[self.pattern.slot(i as u32, j as u32)] += hb[a][bb];
+                            kv[self.assembled_setup().pattern.slot(i as u32, j as u32)] += hb[a][bb];
                         }
                     }
                 }
@@ -572,7 +604,7 @@ impl Model {
             for p in 0..nt {
                 for q in 0..nt {
                     if ks[p] <= ks[q] {
-                        slots[p * nt + q] = self.pattern.slot(ks[p], ks[q]) as u32;
+                        slots[p * nt + q] = self.assembled_setup().pattern.slot(ks[p], ks[q]) as u32;
                     }
                 }
             }
@@ -598,7 +630,7 @@ impl Model {
                 for &(k, ck) in ri {
                     for &(l, cl) in rj {
                         if k <= l {
-                            kv[self.pattern.slot(k, l)] += ck * cl * v;
+                            kv[self.assembled_setup().pattern.slot(k, l)] += ck * cl * v;
                         }
                     }
                 }
@@ -609,20 +641,21 @@ impl Model {
     /// The reduced tangent as a faer matrix (lower triangle stored, in the factorisation's
     /// order of the unknowns: entry (i, j) of the model is at (inv[i], inv[j])).
     fn matrix(&self, values: Vec<f64>) -> SparseColMat<u32, f64> {
-        SparseColMat::new(self.pattern.symbolic(), values)
+        SparseColMat::new(self.assembled_setup().pattern.symbolic(), values)
     }
 
     /// Cholesky factorisation with the stored symbolic analysis (sequential: on the tangents of
     /// this project faer's parallel supernodal factorisation is slower on 2 cores, and sweeps run
     /// one design per core). Fails if not positive definite.
     pub fn factor(&self, values: &[f64]) -> Result<Factor, SolveError> {
+        let sp = self.sparse_setup().map_err(|_| SolveError::Setup)?;
         let a = self.matrix(values.to_vec());
-        let sym = self.symbolic.clone();
+        let sym = sp.symbolic.clone();
         let mut lv = vec![0.0; sym.len_val()];
         let par = Par::Seq;
         let mut mem = MemBuffer::new(sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()));
         match sym.factorize_numeric_llt(&mut lv, a.as_ref(), Side::Lower, Default::default(), par, MemStack::new(&mut mem), Default::default()) {
-            Ok(_) => Ok(Factor { kind: FactorKind::Llt(LltOwned { sym, values: lv }), fwd: self.pattern.fwd.clone() }),
+            Ok(_) => Ok(Factor { kind: FactorKind::Llt(LltOwned { sym, values: lv }), fwd: sp.pattern.fwd.clone() }),
             Err(_) => Err(SolveError::NotPositiveDefinite),
         }
     }
@@ -632,15 +665,16 @@ impl Model {
     /// of a test solve; falls back to LU when that check fails (e.g. small problems, where faer
     /// uses an unpivoted simplicial LDLᵀ).
     pub fn factor_indefinite(&self, values: &[f64]) -> Result<Factor, SolveError> {
-        if let Some(f) = self.factor_lblt(values) {
+        let sp = self.sparse_setup().map_err(|_| SolveError::Setup)?;
+        if let Some(f) = self.factor_lblt(sp, values) {
             return Ok(f);
         }
         self.factor_lu(values)
     }
 
-    fn factor_lblt(&self, values: &[f64]) -> Option<Factor> {
-        let sym = self.symbolic.clone();
-        let n = self.pattern.n;
+    fn factor_lblt(&self, sp: &SparseSetup, values: &[f64]) -> Option<Factor> {
+        let sym = sp.symbolic.clone();
+        let n = sp.pattern.n;
         let a = self.matrix(values.to_vec());
         let mut lv = vec![0.0; sym.len_val()];
         let mut subdiag = vec![0.0; n];
@@ -648,7 +682,7 @@ impl Model {
         let mut inv = vec![0u32; n];
         let mut mem = MemBuffer::new(sym.factorize_numeric_intranode_lblt_scratch::<f64>(Par::Seq, Default::default()));
         sym.factorize_numeric_intranode_lblt(&mut lv, &mut subdiag, &mut fwd, &mut inv, a.as_ref(), Side::Lower, Par::Seq, MemStack::new(&mut mem), Default::default());
-        let f = Factor { kind: FactorKind::Lblt(Lblt { sym, values: lv, subdiag, fwd, inv }), fwd: self.pattern.fwd.clone() };
+        let f = Factor { kind: FactorKind::Lblt(Lblt { sym, values: lv, subdiag, fwd, inv }), fwd: sp.pattern.fwd.clone() };
         // accept only if a test solve is backward stable: ‖K x − b‖ ≤ 1e-11 (‖K‖_F ‖x‖ + ‖b‖)
         // (a breakdown on tiny unpivoted pivots gives a much larger backward error)
         let b: Vec<f64> = (0..n).map(|i| 1.0 + ((i * 7919) % 13) as f64 / 13.0).collect();
@@ -657,8 +691,8 @@ impl Model {
         let nrm = |v: &[f64]| v.iter().map(|t| t * t).sum::<f64>().sqrt();
         let res: f64 = kx.iter().zip(&b).map(|(p, q)| (p - q) * (p - q)).sum::<f64>().sqrt();
         let kf: f64 = (0..n)
-            .flat_map(|c| (self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize).map(move |s| (c, s)))
-            .map(|(c, s)| values[s] * values[s] * if self.pattern.row_idx[s] as usize == c { 1.0 } else { 2.0 })
+            .flat_map(|c| (sp.pattern.col_ptr[c] as usize..sp.pattern.col_ptr[c + 1] as usize).map(move |s| (c, s)))
+            .map(|(c, s)| values[s] * values[s] * if sp.pattern.row_idx[s] as usize == c { 1.0 } else { 2.0 })
             .sum::<f64>()
             .sqrt();
         let eta = res / (kf * nrm(&x) + nrm(&b));
@@ -668,12 +702,13 @@ impl Model {
     /// The full symmetric tangent as a dense matrix in the model's order of the unknowns (tests,
     /// small problems).
     pub fn dense(&self, values: &[f64]) -> Mat<f64> {
-        let n = self.pattern.n;
-        let fwd = &self.pattern.fwd;
+        let Ok(sp) = self.sparse_setup() else { return Mat::zeros(0, 0) };
+        let n = sp.pattern.n;
+        let fwd = &sp.pattern.fwd;
         let mut d = Mat::<f64>::zeros(n, n);
         for c in 0..n {
-            for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
-                let r = self.pattern.row_idx[s] as usize;
+            for s in sp.pattern.col_ptr[c] as usize..sp.pattern.col_ptr[c + 1] as usize {
+                let r = sp.pattern.row_idx[s] as usize;
                 let (i, j) = (fwd[r] as usize, fwd[c] as usize);
                 d[(i, j)] = values[s];
                 d[(j, i)] = values[s];
@@ -684,13 +719,14 @@ impl Model {
 
     /// y = K x for the tangent given by its upper-triangle values.
     pub fn sym_matvec(&self, values: &[f64], x: &[f64]) -> Vec<f64> {
-        let n = self.pattern.n;
-        let fwd = &self.pattern.fwd;
+        let Ok(sp) = self.sparse_setup() else { return vec![0.0; x.len()] };
+        let n = sp.pattern.n;
+        let fwd = &sp.pattern.fwd;
         let mut y = vec![0.0; n];
         for c in 0..n {
             let oc = fwd[c] as usize;
-            for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
-                let r = self.pattern.row_idx[s] as usize;
+            for s in sp.pattern.col_ptr[c] as usize..sp.pattern.col_ptr[c + 1] as usize {
+                let r = sp.pattern.row_idx[s] as usize;
                 let or = fwd[r] as usize;
                 let v = values[s];
                 y[or] += v * x[oc];
@@ -704,13 +740,14 @@ impl Model {
 
     /// LU factorisation of the (symmetric, possibly indefinite) tangent.
     pub fn factor_lu(&self, values: &[f64]) -> Result<Factor, SolveError> {
+        let sp = self.sparse_setup().map_err(|_| SolveError::Setup)?;
         let lu_sym = self.symbolic_lu.get_or_init(|| {
             // full pattern: mirror the upper triangle
-            let n = self.pattern.n;
+            let n = sp.pattern.n;
             let mut cols: Vec<Vec<(u32, usize)>> = vec![Vec::new(); n];
             for c in 0..n {
-                for s in self.pattern.col_ptr[c] as usize..self.pattern.col_ptr[c + 1] as usize {
-                    let r = self.pattern.row_idx[s] as usize;
+                for s in sp.pattern.col_ptr[c] as usize..sp.pattern.col_ptr[c + 1] as usize {
+                    let r = sp.pattern.row_idx[s] as usize;
                     cols[c].push((r as u32, s));
                     if r != c {
                         cols[r].push((c as u32, s));
@@ -735,7 +772,7 @@ impl Model {
         let (sym, src, lu) = lu_sym.as_ref().ok_or(SolveError::Singular)?;
         let vals: Vec<f64> = src.iter().map(|&s| values[s]).collect();
         let a = SparseColMat::new(sym.clone(), vals);
-        Lu::try_new_with_symbolic(lu.clone(), a.as_ref()).map(|l| Factor { kind: FactorKind::Lu(l), fwd: self.pattern.fwd.clone() }).map_err(|_| SolveError::Singular)
+        Lu::try_new_with_symbolic(lu.clone(), a.as_ref()).map(|l| Factor { kind: FactorKind::Lu(l), fwd: sp.pattern.fwd.clone() }).map_err(|_| SolveError::Singular)
     }
 }
 
@@ -993,6 +1030,7 @@ pub(crate) fn relabel(e: ElementError, el: usize) -> ElementError {
         ElementError::BadReference(_) => ElementError::BadReference(el),
         ElementError::Inverted(_) => ElementError::Inverted(el),
         ElementError::NonFinite(_) => ElementError::NonFinite(el),
+        ElementError::Setup => ElementError::Setup,
     }
 }
 

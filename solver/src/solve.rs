@@ -83,7 +83,7 @@ pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &Ne
 fn elem_fail(e: ElementError) -> NewtonFailure {
     match e {
         ElementError::Inverted(_) | ElementError::BadReference(_) => NewtonFailure::Inversion,
-        ElementError::NonFinite(_) => NewtonFailure::Divergence,
+        ElementError::NonFinite(_) | ElementError::Setup => NewtonFailure::Divergence,
     }
 }
 

@@ -77,6 +77,9 @@ fn main() {
     if wanted("sweep_throughput_rom") {
         sweep_throughput_rom();
     }
+    if wanted("rom_evaluation") {
+        rom_evaluation();
+    }
     if wanted("cold_evaluation") {
         cold_evaluation();
     }
@@ -265,6 +268,58 @@ fn sweep_throughput_rom() {
         );
     }
     merge("sweep_throughput_rom", Value::Object(out));
+}
+
+/// One reduced evaluation of the committed quadrature-level model (studies/rom/sweep-k80-points)
+/// at the sweep preset, at a loaded state of the free scene (the sweep probe design l = 16,
+/// α = 200°, at 50 kPa, reached by the path follower): the residual with and without the
+/// tangent, and the per-path setup, one thread. The hot loop of `sweep_throughput_rom`, with
+/// less noise than whole designs.
+fn rom_evaluation() {
+    use twistopt::scene::{SceneKind, SceneModel, SceneOptions, DEFAULT_KAPPA_OVER_MU, MU_HEICAST_MPA};
+    use twistopt_solver::continuation::{follow, ContinuationOptions};
+    use twistopt_solver::material::NeoHookean;
+    let nh = NeoHookean::with_ratio(MU_HEICAST_MPA, DEFAULT_KAPPA_OVER_MU).expect("material");
+    let opts = SceneOptions::new(MeshSpec::preset("sweep").expect("preset"), nh.into());
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/rom/sweep-k80-points");
+    let (rom, _) = twistopt::rom::load(&dir, &opts).expect("reduced model");
+    let geom = ActuatorGeometry::new(&Design::new(12.0, 16.0, 200.0), RangePolicy::TableI).expect("design");
+    let sm = SceneModel::build(&geom, &opts, SceneKind::Free).expect("scene");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    pool.install(|| {
+        let (from, to) = (sm.loads(0.0, 0.0), sm.loads(50.0, 0.0));
+        let setup = (0..5)
+            .map(|_| {
+                let t = Instant::now();
+                std::hint::black_box(rom.path(&sm.model, from.clone(), to.clone(), sm.functionals()).expect("path"));
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let rp = rom.path(&sm.model, from.clone(), to.clone(), sm.functionals()).expect("path");
+        let m = rp.red.dim();
+        let res = follow(&rp, &vec![0.0; m], 0.0, 1.0, &[], &[], &ContinuationOptions::default());
+        let last = res.points.last().expect("a point");
+        let (z, loads) = (last.q.clone(), rp.loads(last.lam));
+        // the fastest of 5 batches (the machine's load varies)
+        let time = |tangent: bool, reps: usize| {
+            (0..5)
+                .map(|_| {
+                    let t = Instant::now();
+                    for _ in 0..reps {
+                        std::hint::black_box(rp.evaluate(&z, &loads, tangent).expect("evaluation"));
+                    }
+                    t.elapsed().as_secs_f64() / reps as f64
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let tan = time(true, 20);
+        let resid = time(false, 80);
+        println!("rom_evaluation (sweep preset, k = 80, 922 points, one thread, p = {:.1} kPa): tangent {:.2} ms, residual only {:.2} ms, path setup {:.1} ms", loads.pressure * 1e3, tan * 1e3, resid * 1e3, setup * 1e3);
+        merge(
+            "rom_evaluation",
+            json!({"description": "one evaluation of the reduced model studies/rom/sweep-k80-points (sweep preset, 80 modes + 2 rigid DOFs, 922 sampled points, 1 089 cavity surface nodes) at a loaded state of the free scene (design r 12, l 16, α 200°, 50 kPa): with the tangent, the residual only, and RomPath::new; one thread, the fastest of 5 batches", "dim": m, "tangent_ms": tan * 1e3, "residual_ms": resid * 1e3, "path_setup_ms": setup * 1e3}),
+        );
+    });
 }
 
 fn toml_string(s: &str) -> String {

@@ -202,6 +202,11 @@ fn project_field<M: Hyperelastic>(ps: PressureSpace, mat: &M, params: &[f64], qp
     (th, pt)
 }
 
+/// The kinematics of an element at its quadrature point `gp`.
+pub fn gather_point<D: Scalar>(form: &Formulation, rule: &HexRule, x0: &[[D; 3]], u: &[[D; 3]], gp: usize) -> Result<QpData<D>, ElementError> {
+    qp_data(rule, gp, x0, u, form.pressure.basis(rule.points[gp]))
+}
+
 /// The kinematics of an element at each of its quadrature points.
 pub fn gather<D: Scalar>(form: &Formulation, rule: &HexRule, x0: &[[D; 3]], u: &[[D; 3]]) -> Result<Vec<QpData<D>>, ElementError> {
     (0..rule.weights.len()).map(|gp| qp_data(rule, gp, x0, u, form.pressure.basis(rule.points[gp]))).collect()

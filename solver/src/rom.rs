@@ -1109,6 +1109,11 @@ fn point_tangent_columns_impl(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]
 /// G = ∂F/∂z (9 × m, row-major) at a point of gradients `grad` from its element's
 /// J = ∂u_e/∂z (3nn × m, row-major), into `out`.
 fn point_g(grad: &[[f64; 3]], jac: &[f64], m: usize, out: &mut [f64]) {
+    simd_dispatch!(point_g_impl(grad, jac, m, out))
+}
+
+#[inline(always)]
+fn point_g_impl(grad: &[[f64; 3]], jac: &[f64], m: usize, out: &mut [f64]) {
     out.iter_mut().for_each(|v| *v = 0.0);
     for (a, ga) in grad.iter().enumerate() {
         for i in 0..3 {
@@ -1321,9 +1326,16 @@ impl Mixed {
         let kp = pb.kp;
         let mut quad = Vec::with_capacity(sample.elements.len());
         let mut mr = Mat::<f64>::zeros(kp, kp);
+        // (a quadrature-level sample lists an element once per sampled point: its rule once)
+        let mut by_element: std::collections::HashMap<usize, Vec<([f64; 4], f64)>> = std::collections::HashMap::new();
         for (i, (&e, &w)) in sample.elements.iter().zip(&sample.weights).enumerate() {
-            let xe = model.mesh.element_coords(e);
-            let mut qd = element::pressure_quadrature(&model.form, rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
+            let mut qd = match by_element.entry(e) {
+                std::collections::hash_map::Entry::Occupied(o) => o.get().clone(),
+                std::collections::hash_map::Entry::Vacant(v) => {
+                    let xe = model.mesh.element_coords(e);
+                    v.insert(element::pressure_quadrature(&model.form, rule, &xe).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?).clone()
+                }
+            };
             if let Some(&gp) = sample.points.get(i) {
                 if gp >= qd.len() {
                     return Err(RomError::SamplePoint(i, gp, qd.len()));
@@ -1421,15 +1433,11 @@ impl<'a> RomPath<'a> {
             let pos: std::collections::HashMap<usize, usize> = elem_items.iter().enumerate().map(|(i, &e)| (e, i)).collect();
             let (mut item, mut grad, mut wj0, mut phi, mut rigid) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
             let zero = vec![[0.0; 3]; model.mesh.kind.nodes_per_element()];
-            let mut data: std::collections::HashMap<usize, Vec<element::QpData<f64>>> = std::collections::HashMap::new();
             for (&e, &gp) in sample.elements.iter().zip(&sample.points) {
-                if let std::collections::hash_map::Entry::Vacant(v) = data.entry(e) {
-                    let xe = model.mesh.element_coords(e);
-                    v.insert(element::gather(&model.form, &rule, &xe, &zero).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?);
-                }
-                let d = &data[&e][gp];
+                let xe = model.mesh.element_coords(e);
+                let d = element::gather_point(&model.form, &rule, &xe, &zero, gp).map_err(|err| RomError::Element(crate::model::relabel(err, e)))?;
                 item.push(pos[&e]);
-                grad.push(d.g.clone());
+                grad.push(d.g);
                 wj0.push(d.wj0);
                 phi.push(d.q);
                 rigid.push(model.mesh.element(e).iter().any(|&n| (0..3).any(|c| matches!(model.dofs.comps[3 * n + c], Comp::Rigid(_)))));

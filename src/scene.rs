@@ -493,18 +493,31 @@ struct ScenePath {
     stats: PathStats,
     /// tangent and factor at the last point
     last: Option<(Vec<f64>, Factor)>,
+    /// at `rom` fidelity: the reduced model's error indicator at the path's highest pressure
+    /// (p kPa, indicator), from the path's own reduced model
+    indicator: Option<(f64, f64)>,
 }
 
 /// Follow the scene's pressure from the state `q0` at `p0_kpa` to `p_end_kpa` with stations at
 /// `stations_kpa`; the ballooning limit and (for vacuum) self-contact stop it where `stop` says.
 fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
-    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop)
+    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop, false)
 }
 
 /// [`pressure_path`] with its own path options: on the full model, or on the reduced one when
 /// `opts.rom` is set (its states are then reduced coordinates).
 #[allow(clippy::too_many_arguments)]
-fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
+fn pressure_path_with(
+    sm: &SceneModel,
+    path_opts: &ContinuationOptions,
+    opts: &SceneOptions,
+    q0: &[f64],
+    p0_kpa: f64,
+    p_end_kpa: f64,
+    stations_kpa: &[f64],
+    stop: bool,
+    want_indicator: bool,
+) -> ScenePath {
     let vacuum = p_end_kpa < 0.0;
     let gap = sm.contact_gap();
     let (from, to) = (sm.loads(0.0, 0.0), sm.loads(p_end_kpa, 0.0));
@@ -518,7 +531,7 @@ fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &S
     let stations: Vec<f64> = stations_kpa.iter().map(|p| p / p_end_kpa).collect();
     let lam0 = if p_end_kpa != 0.0 { p0_kpa / p_end_kpa } else { 0.0 };
     if let Some(rom) = &opts.rom {
-        let refuse = |cause: String| ScenePath { points: Vec::new(), end: Some((SceneStatus::ModelError, cause)), stats: PathStats::default(), last: None };
+        let refuse = |cause: String| ScenePath { points: Vec::new(), end: Some((SceneStatus::ModelError, cause)), stats: PathStats::default(), last: None, indicator: None };
         if vacuum {
             return refuse("the reduced-order model covers positive pressures only (vacuum needs self-contact)".into());
         }
@@ -527,7 +540,13 @@ fn pressure_path_with(sm: &SceneModel, path_opts: &ContinuationOptions, opts: &S
             Err(e) => return refuse(format!("reduced-order model: {e}")),
         };
         let res = follow(&rp, q0, lam0, 1.0, &stations, &stops, path_opts);
-        return scene_path(sm, opts, &res.points, res.end, res.stats, |lam| rp.loads(lam), &stops, p0_kpa, gap, None);
+        // the indicator at the highest pressure, on this path's reduced model (as
+        // `rom_indicator`, without building another)
+        let top = res.points.iter().max_by(|a, b| a.lam.total_cmp(&b.lam)).filter(|_| want_indicator && p_end_kpa > 0.0);
+        let indicator = top.and_then(|pt| rp.indicator(&pt.q, pt.lam).ok().filter(|v| v.is_finite()).map(|v| (rp.loads(pt.lam).pressure * 1e3, v)));
+        let mut path = scene_path(sm, opts, &res.points, res.end, res.stats, |lam| rp.loads(lam), &stops, p0_kpa, gap, None);
+        path.indicator = indicator;
+        return path;
     }
     let lp = sm.path(from, to, (vacuum && stop).then_some(gap));
     let res = follow(&lp, q0, lam0, 1.0, &stations, &stops, path_opts);
@@ -570,7 +589,7 @@ fn scene_path(
             Some((SceneStatus::from_failure(f), cause))
         }
     };
-    ScenePath { points, end, stats, last }
+    ScenePath { points, end, stats, last, indicator: None }
 }
 
 /// Every converged state of a scene's pressure ramp from the unloaded state towards `p_end_kpa`
@@ -748,12 +767,17 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
     let mut states = vec![q0.clone()];
     let mut status = (SceneStatus::Completed, String::new());
     let mut stats = PathStats::default();
+    // the reduced model's indicator at its path's highest pressure (positive branch)
+    let mut indicator: Option<(f64, f64)> = None;
     for branch in [pos, neg] {
         let Some(&p_end) = branch.last() else {
             continue;
         };
-        let path = pressure_path(&sm, opts, &q0, 0.0, p_end, &branch[..branch.len() - 1], true);
+        let path = pressure_path_with(&sm, &opts.steps, opts, &q0, 0.0, p_end, &branch[..branch.len() - 1], true, true);
         stats.add(&path.stats);
+        if let Some(ind) = path.indicator {
+            indicator = Some(ind);
+        }
         for p in path.points.into_iter().skip(1) {
             steps.push(p.record);
             states.push(p.q);
@@ -780,6 +804,8 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
             .collect(),
     });
     let rom_indicator = match (steps.last(), states.last()) {
+        // (the path's own, where it is at the scene's highest recorded pressure)
+        (Some(s), _) if opts.rom.is_some() && indicator.is_some_and(|(p, _)| p == s.p_kpa) => indicator.map(|(_, v)| v),
         (Some(s), Some(z)) if opts.rom.is_some() => rom_indicator(&sm, opts, z, s.p_kpa),
         _ => None,
     };
@@ -823,7 +849,7 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
     // a short segment from a converged step: try it in one step (the step control shrinks it
     // if needed)
     let short = ContinuationOptions { initial: 1.0, max: 1.0, ..opts.steps.clone() };
-    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false);
+    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false, false);
     r.newton_iterations += path.stats.newton_iterations;
     r.path.add(&path.stats);
     if path.end.is_none() {

@@ -252,15 +252,6 @@ impl Model {
             .map_err(|e| ModelError::Symbolic(e.clone()))
     }
 
-    /// The setup of a model that has assembled a tangent (its values exist only then).
-    fn assembled_setup(&self) -> &SparseSetup {
-        match self.sparse.get() {
-            Some(Ok(sp)) => sp,
-            // (unreachable: tangent values come from `assemble`, which builds the setup first)
-            _ => unreachable!("a tangent's values without the model's sparse setup"),
-        }
-    }
-
     /// Entries of the Cholesky factor L (the fill of the ordering; 0 if the setup failed).
     pub fn factor_nnz(&self) -> usize {
         self.sparse_setup().map_or(0, |sp| sp.symbolic.len_val())
@@ -372,12 +363,12 @@ impl Model {
                             r_full[3 * n + c] += f[3 * a + c];
                         }
                     }
-                    if let Some(kv) = kv.as_mut() {
+                    if let (Some(kv), Some(sp)) = (kv.as_mut(), sp) {
                         let k = &kbuf[off * nd * nd..(off + 1) * nd * nd];
                         self.fill_rows(conn, &kin, &mut rows);
-                        match self.scatter_tables() {
+                        match self.scatter_tables(sp) {
                             Some(tables) => scatter_cached(&tables[el], &rows, k, kv),
-                            None => self.scatter(&rows, k, kv),
+                            None => self.scatter(sp, &rows, k, kv),
                         }
                     }
                 }
@@ -413,7 +404,7 @@ impl Model {
                             r_full[3 * n + c] -= p * g[3 * a + c];
                         }
                     }
-                    if let Some(kv) = kv.as_mut() {
+                    if let (Some(kv), Some(sp)) = (kv.as_mut(), sp) {
                         let mut h = vec![0.0; m * m];
                         if is_face {
                             surface::face_volume_hessian(&cav.rule, &xs, &mut h);
@@ -423,9 +414,9 @@ impl Model {
                         h.iter_mut().for_each(|v| *v *= -p);
                         let mut rws: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
                         self.fill_rows(nodes, &kin, &mut rws);
-                        match self.cavity_scatter_tables() {
+                        match self.cavity_scatter_tables(sp) {
                             Some(tables) => scatter_cached(&tables[idx], &rws, &h, kv),
-                            None => self.scatter(&rws, &h, kv),
+                            None => self.scatter(sp, &rws, &h, kv),
                         }
                     }
                 }
@@ -462,7 +453,7 @@ impl Model {
             }
         }
         // second-order rigid rotation term Σ R_i ∂²u_i/∂ψa∂ψb
-        if let Some(kv) = kv.as_mut() {
+        if let (Some(kv), Some(sp)) = (kv.as_mut(), sp) {
             for (b, body) in self.dofs.bodies.iter().enumerate() {
                 let mut hb = [[0.0; 3]; 3];
                 for &n in &body.nodes {
@@ -483,7 +474,7 @@ impl Model {
                 for a in 0..3 {
                     for bb in a..3 {
                         if let (crate::dofmap::BodyDof::Free(i), crate::dofmap::BodyDof::Free(j)) = (self.dofs.body_dofs[b][3 + a], self.dofs.body_dofs[b][3 + bb]) {
-                            kv[self.assembled_setup().pattern.slot(i as u32, j as u32)] += hb[a][bb];
+                            kv[sp.pattern.slot(i as u32, j as u32)] += hb[a][bb];
                         }
                     }
                 }
@@ -562,23 +553,23 @@ impl Model {
         }
     }
 
-    fn scatter_tables(&self) -> Option<&Vec<ElemScatter>> {
-        self.scatter_cache.get_or_init(|| self.build_scatter((0..self.mesh.n_elements()).map(|e| self.mesh.element(e)))).as_ref()
+    fn scatter_tables(&self, sp: &SparseSetup) -> Option<&Vec<ElemScatter>> {
+        self.scatter_cache.get_or_init(|| self.build_scatter(sp, (0..self.mesh.n_elements()).map(|e| self.mesh.element(e)))).as_ref()
     }
 
     /// Scatter tables of the cavity's faces, then its edges (the load stiffness −p ∂²V/∂x²).
-    fn cavity_scatter_tables(&self) -> Option<&Vec<ElemScatter>> {
+    fn cavity_scatter_tables(&self, sp: &SparseSetup) -> Option<&Vec<ElemScatter>> {
         self.cavity_scatter
             .get_or_init(|| {
                 let cav = self.cavity.as_ref()?;
-                self.build_scatter(cav.face_nodes.iter().map(|v| v.as_slice()).chain(cav.edges.iter().map(|e| e.0.as_slice())))
+                self.build_scatter(sp, cav.face_nodes.iter().map(|v| v.as_slice()).chain(cav.edges.iter().map(|e| e.0.as_slice())))
             })
             .as_ref()
     }
 
     /// Where each pair of (local DOF → reduced DOF) terms of each node list lands in the CSC
     /// values; None when the tables would exceed 512 MB (then the slots are searched).
-    fn build_scatter<'a>(&self, lists: impl Iterator<Item = &'a [usize]>) -> Option<Vec<ElemScatter>> {
+    fn build_scatter<'a>(&self, sp: &SparseSetup, lists: impl Iterator<Item = &'a [usize]>) -> Option<Vec<ElemScatter>> {
         let mut total = 0usize;
         let mut out = Vec::new();
         let mut pat = Vec::new();
@@ -604,7 +595,7 @@ impl Model {
             for p in 0..nt {
                 for q in 0..nt {
                     if ks[p] <= ks[q] {
-                        slots[p * nt + q] = self.assembled_setup().pattern.slot(ks[p], ks[q]) as u32;
+                        slots[p * nt + q] = sp.pattern.slot(ks[p], ks[q]) as u32;
                     }
                 }
             }
@@ -614,7 +605,7 @@ impl Model {
     }
 
     /// K_red[k,l] += Σ c_i c_j K_e[i][j] over the rows of the local DOFs (upper triangle only).
-    fn scatter(&self, rows: &[Vec<(u32, f64)>], ke: &[f64], kv: &mut [f64]) {
+    fn scatter(&self, sp: &SparseSetup, rows: &[Vec<(u32, f64)>], ke: &[f64], kv: &mut [f64]) {
         let nd = rows.len();
         for i in 0..nd {
             let ri = &rows[i];
@@ -630,7 +621,7 @@ impl Model {
                 for &(k, ck) in ri {
                     for &(l, cl) in rj {
                         if k <= l {
-                            kv[self.assembled_setup().pattern.slot(k, l)] += ck * cl * v;
+                            kv[sp.pattern.slot(k, l)] += ck * cl * v;
                         }
                     }
                 }
@@ -640,8 +631,8 @@ impl Model {
 
     /// The reduced tangent as a faer matrix (lower triangle stored, in the factorisation's
     /// order of the unknowns: entry (i, j) of the model is at (inv[i], inv[j])).
-    fn matrix(&self, values: Vec<f64>) -> SparseColMat<u32, f64> {
-        SparseColMat::new(self.assembled_setup().pattern.symbolic(), values)
+    fn matrix(&self, sp: &SparseSetup, values: Vec<f64>) -> SparseColMat<u32, f64> {
+        SparseColMat::new(sp.pattern.symbolic(), values)
     }
 
     /// Cholesky factorisation with the stored symbolic analysis (sequential: on the tangents of
@@ -649,7 +640,7 @@ impl Model {
     /// one design per core). Fails if not positive definite.
     pub fn factor(&self, values: &[f64]) -> Result<Factor, SolveError> {
         let sp = self.sparse_setup().map_err(|_| SolveError::Setup)?;
-        let a = self.matrix(values.to_vec());
+        let a = self.matrix(sp, values.to_vec());
         let sym = sp.symbolic.clone();
         let mut lv = vec![0.0; sym.len_val()];
         let par = Par::Seq;
@@ -675,7 +666,7 @@ impl Model {
     fn factor_lblt(&self, sp: &SparseSetup, values: &[f64]) -> Option<Factor> {
         let sym = sp.symbolic.clone();
         let n = sp.pattern.n;
-        let a = self.matrix(values.to_vec());
+        let a = self.matrix(sp, values.to_vec());
         let mut lv = vec![0.0; sym.len_val()];
         let mut subdiag = vec![0.0; n];
         let mut fwd = vec![0u32; n];

@@ -1687,7 +1687,7 @@ impl<'a> RomPath<'a> {
         u: &[[f64; 3]],
         kin: &[BodyKin],
         r: &mut [f64],
-        kz: Option<(&mut Mat<f64>, &mut Mat<f64>)>,
+        tangent: Option<(&mut Mat<f64>, &mut Mat<f64>)>,
         r_body: &mut [f64],
         energy: &mut f64,
         min_det: &mut f64,
@@ -1712,11 +1712,10 @@ impl<'a> RomPath<'a> {
             moments.push((0..np).map(|rr| ps.phi[i][rr] * j * ps.wj0[i]).collect::<Vec<f64>>());
         }
         let (pcs, h, _) = reduced_pressure(model, self.sample, mx, pb, &moments, energy, min_det)?;
-        let want_k = kz.is_some();
+        let want_k = tangent.is_some();
         // row-major 9 × m blocks: A G of every point, G of the state-dependent ones
         // (reused per thread: fresh multi-megabyte buffers cost page faults at every evaluation;
         // every entry used is overwritten below)
-        let kl = kz;
         let (mut ag, mut g_dyn) = POINT_BUFFERS.with(|b| std::mem::take(&mut *b.borrow_mut()));
         ag.resize(if want_k { 9 * n * m } else { 0 }, 0.0);
         // G of the state-dependent points: the static nodes' part, then the others' sparse rows
@@ -1827,7 +1826,7 @@ impl<'a> RomPath<'a> {
                 add_body_nodal(model, conn, &fnod, w, r_body);
             }
         }
-        if let Some((kz, kl)) = kl {
+        if let Some((kz, kl)) = tangent {
             fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
                 faer::MatRef::from_row_major_slice(v, rows, m)
             }

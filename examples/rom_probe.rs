@@ -109,7 +109,7 @@ fn main() {
         };
         let ns = sample.elements.len();
         let mut ro = opts.clone();
-        ro.rom = Some(Arc::new(Rom { basis, sample }));
+        ro.rom = Some(Arc::new(Rom::new(basis, sample)));
         let (mut eo, mut ep, mut cpu) = (Vec::new(), Vec::new(), 0.0);
         for (d, (ff, fb, _)) in designs.iter().zip(&full) {
             let g = ActuatorGeometry::new(d, RangePolicy::TableI).unwrap();

@@ -275,7 +275,7 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
         ecsw_time_s,
         full_newton_iterations: ramps.iter().map(|r| r.newton_iterations).sum(),
     };
-    Ok((Rom { basis, sample: fit.sample }, report))
+    Ok((Rom::new(basis, fit.sample), report))
 }
 
 /// "r=…, l=…, alpha=…" of a design.
@@ -404,7 +404,7 @@ pub fn load(dir: &std::path::Path, opts: &SceneOptions) -> Result<(Rom, Manifest
     let refs = take_f64s(&bytes, &mut at, 3 * m.reference_nodes)?;
     let reference = refs.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let basis = Basis { frame: m.frame, n: m.n, k: m.k, reference, v, singular_values: m.report.singular_values.clone(), pressure };
-    Ok((Rom { basis, sample: m.sample.clone() }, m))
+    Ok((Rom::new(basis, m.sample.clone()), m))
 }
 
 /// Why a design lies outside a reduced model's training box (None: inside).

@@ -114,7 +114,7 @@ fn hyper_reduced_tangent_is_the_derivative_of_its_residual() {
     let z: Vec<f64> = (0..m).map(|i| 0.04 * ((i * 37 % 11) as f64 / 11.0 - 0.4)).collect();
     let k = rp.eval(&z, 0.7, true, None).unwrap().k.unwrap();
     assert_tangent_is_central_difference("hyper-reduced", k, &z, |z| rp.eval(z, 0.7, false, None).unwrap().r);
-    let _ = Rom { basis, sample };
+    let _ = Rom::new(basis, sample);
 }
 
 /// A reduced pressure space spanning every element's own pressure space (Ψ = I) is the full

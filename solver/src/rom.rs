@@ -1151,20 +1151,146 @@ struct CavityProj {
     row_ptr: Vec<usize>,
     row_ent: Vec<(u32, u32)>,
     n_blocks: usize,
+    /// the faces whose nodes all move linearly with z, as an exact cubic of z (the faces and
+    /// edges above are then only the others)
+    cubic: Option<CubicCavity>,
+}
+
+/// The volume enclosed by faces whose nodes all move linearly with z, x = X + Φ z: a
+/// homogeneous cubic of the nodal positions, so exactly
+/// V(z) = V₀ + g₀·z + ½ zᵀA₀z + ⅙ T[z,z,z], ∂V/∂z = g₀ + A₀z + ½ T[z]z, ∂²V/∂z² = A₀ + T[z],
+/// with g₀ = Φᵀ∇V(X), A₀ = ΦᵀH(X)Φ and T_r = ΦᵀH(Φ_r)Φ (H is linear in x). T depends on the
+/// basis and the faces' topology only, not on the design ([`CavityTensors`] keeps it per model).
+struct CubicCavity {
+    v0: f64,
+    g0: Vec<f64>,
+    /// A₀ (m × m, column-major)
+    a0: Vec<f64>,
+    /// T_r (m × m, column-major) for r < `t_cols` (the columns beyond are zero on these faces)
+    t: std::sync::Arc<Vec<f64>>,
+    t_cols: usize,
+}
+
+/// The cavity volume tensors T of [`CubicCavity`], built once per basis and dof layout and shared
+/// by every design's reduced paths (a Rom's paths look them up here).
+#[derive(Default)]
+pub struct CavityTensors {
+    cache: std::sync::Mutex<Vec<(u64, std::sync::Arc<Vec<f64>>)>>,
+}
+
+impl Clone for CavityTensors {
+    fn clone(&self) -> Self {
+        CavityTensors { cache: std::sync::Mutex::new(self.cache.lock().unwrap_or_else(|e| e.into_inner()).clone()) }
+    }
+}
+
+impl std::fmt::Debug for CavityTensors {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "CavityTensors({} cached)", self.cache.lock().map(|c| c.len()).unwrap_or(0))
+    }
+}
+
+/// (a cache: every two compare equal)
+impl PartialEq for CavityTensors {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl CavityTensors {
+    fn get(&self, key: u64, build: impl FnOnce() -> Vec<f64>) -> std::sync::Arc<Vec<f64>> {
+        if let Some((_, t)) = self.cache.lock().unwrap_or_else(|e| e.into_inner()).iter().find(|(k, _)| *k == key) {
+            return t.clone();
+        }
+        let t = std::sync::Arc::new(build());
+        let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if !c.iter().any(|(k, _)| *k == key) {
+            c.push((key, t.clone()));
+        }
+        t
+    }
 }
 
 impl CavityProj {
-    fn new(red: &Reduction, cav: &surface::Cavity, is_static: &dyn Fn(usize) -> bool, kin0: &[BodyKin]) -> CavityProj {
+    /// The cavity's data at the path's reference state u0 (z = 0). With `cubic_ok` (the rows of
+    /// J of the static nodes and u0 do not move along the path), the faces of static nodes only
+    /// are reduced as an exact cubic of z ([`CubicCavity`]); the rest as below.
+    #[allow(clippy::too_many_arguments)]
+    fn new(red: &Reduction, cav: &surface::Cavity, is_static: &dyn Fn(usize) -> bool, kin0: &[BodyKin], cubic_ok: bool, u0: &[[f64; 3]], tensors: Option<&CavityTensors>) -> CavityProj {
+        let all: Vec<usize> = (0..cav.face_nodes.len()).collect();
+        if !cubic_ok {
+            return CavityProj::over(red, cav, &all, true, is_static, kin0, None);
+        }
+        let (lin, other): (Vec<usize>, Vec<usize>) = all.into_iter().partition(|&f| cav.face_nodes[f].iter().all(|&n| is_static(n)));
+        let m = red.dim();
+        let sub = CavityProj::over(red, cav, &lin, false, is_static, kin0, None);
+        let x0 = &red.model.mesh.nodes;
+        let xs: Vec<[f64; 3]> = sub.nodes.iter().map(|&n| [x0[n][0] + u0[n][0], x0[n][1] + u0[n][1], x0[n][2] + u0[n][2]]).collect();
+        // V₀, g₀ and A₀ at X
+        let mut v0 = 0.0;
+        let mut gs = vec![0.0; 3 * xs.len()];
+        let mut gl = Vec::new();
+        let mut xl = Vec::new();
+        for loc in &sub.faces {
+            xl.clear();
+            xl.extend(loc.iter().map(|&a| xs[a as usize]));
+            gl.clear();
+            gl.resize(3 * loc.len(), 0.0);
+            v0 += surface::face_volume_grad(&cav.rule, &xl, &mut gl);
+            for (d, &a) in loc.iter().enumerate() {
+                for c in 0..3 {
+                    gs[3 * a as usize + c] += gl[3 * d + c];
+                }
+            }
+        }
+        let mut g0 = vec![0.0; m];
+        {
+            let gm = faer::MatMut::from_column_major_slice_mut(&mut g0, m, 1);
+            let phi = faer::MatRef::from_row_major_slice(&sub.phi_static, sub.phi_static.len() / m.max(1), m);
+            faer::linalg::matmul::matmul(gm, faer::Accum::Replace, phi.transpose(), faer::MatRef::from_column_major_slice(&gs, gs.len(), 1), 1.0, faer::Par::Seq);
+        }
+        let a0 = sub.static_hessian(&cav.rule, &xs, m);
+        // the columns of Φ_s that are not zero (the modes; rigid-body coordinates move no static node)
+        let nrow = sub.phi_static.len() / m.max(1);
+        let t_cols = (0..m).rev().find(|&r| (0..nrow).any(|i| sub.phi_static[i * m + r] != 0.0)).map_or(0, |r| r + 1);
+        let build = || {
+            let mut t = vec![0.0; m * m * t_cols];
+            for r in 0..t_cols {
+                let dir: Vec<[f64; 3]> = (0..sub.nodes.len()).map(|a| [0, 1, 2].map(|c| sub.phi_static[(3 * a + c) * m + r])).collect();
+                t[r * m * m..(r + 1) * m * m].copy_from_slice(&sub.static_hessian(&cav.rule, &dir, m));
+            }
+            t
+        };
+        let t = match tensors {
+            Some(cache) => {
+                use std::hash::{Hash, Hasher};
+                let mut h = std::collections::hash_map::DefaultHasher::new();
+                (m, t_cols, sub.nodes.len(), sub.faces.len()).hash(&mut h);
+                sub.faces.hash(&mut h);
+                sub.phi_static.iter().for_each(|v| v.to_bits().hash(&mut h));
+                cav.rule.weights.iter().for_each(|v| v.to_bits().hash(&mut h));
+                cache.get(h.finish(), build)
+            }
+            None => std::sync::Arc::new(build()),
+        };
+        CavityProj::over(red, cav, &other, true, is_static, kin0, Some(CubicCavity { v0, g0, a0, t, t_cols }))
+    }
+
+    /// The surface-node data of the given faces (and, with `edges`, the boundary edges).
+    #[allow(clippy::too_many_arguments)]
+    fn over(red: &Reduction, cav: &surface::Cavity, face_ids: &[usize], with_edges: bool, is_static: &dyn Fn(usize) -> bool, kin0: &[BodyKin], cubic: Option<CubicCavity>) -> CavityProj {
+        let face_nodes: Vec<&Vec<usize>> = face_ids.iter().map(|&f| &cav.face_nodes[f]).collect();
+        let edge_nodes: Vec<&Vec<usize>> = if with_edges { cav.edges.iter().map(|e| &e.0).collect() } else { Vec::new() };
         let mut seen = std::collections::BTreeSet::new();
-        for n in cav.face_nodes.iter().flatten().chain(cav.edges.iter().flat_map(|e| e.0.iter())) {
+        for n in face_nodes.iter().chain(&edge_nodes).flat_map(|v| v.iter()) {
             seen.insert(*n);
         }
         let (mut nodes, dynamic): (Vec<usize>, Vec<usize>) = seen.into_iter().partition(|&n| is_static(n));
         let n_static = nodes.len();
         nodes.extend(dynamic);
         let local: std::collections::HashMap<usize, u32> = nodes.iter().enumerate().map(|(i, &n)| (n, i as u32)).collect();
-        let faces: Vec<Vec<u32>> = cav.face_nodes.iter().map(|f| f.iter().map(|n| local[n]).collect()).collect();
-        let edges: Vec<Vec<u32>> = cav.edges.iter().map(|e| e.0.iter().map(|n| local[n]).collect()).collect();
+        let faces: Vec<Vec<u32>> = face_nodes.iter().map(|f| f.iter().map(|n| local[n]).collect()).collect();
+        let edges: Vec<Vec<u32>> = edge_nodes.iter().map(|e| e.iter().map(|n| local[n]).collect()).collect();
         let mut ids: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
         let mut face_blocks = Vec::with_capacity(faces.len());
         for f in &faces {
@@ -1191,14 +1317,53 @@ impl CavityProj {
         }
         let (mut scratch, mut phi_static) = (Vec::new(), Vec::new());
         red.jacobian(&nodes[..n_static], kin0, &mut scratch, &mut phi_static);
-        CavityProj { nodes, n_static, phi_static, faces, edges, face_blocks, row_ptr, row_ent, n_blocks }
+        CavityProj { nodes, n_static, phi_static, faces, edges, face_blocks, row_ptr, row_ent, n_blocks, cubic }
+    }
+
+    /// Φ_sᵀ H(x) Φ_s (m × m, column-major) over the faces, every node static (x per surface node).
+    fn static_hessian(&self, rule: &crate::shape::FaceRule, xs: &[[f64; 3]], m: usize) -> Vec<f64> {
+        let ns = self.nodes.len();
+        let vb = self.face_skew_blocks(rule, xs);
+        let mut hphi = vec![0.0; 3 * ns * m];
+        skew_blocks_times(&self.row_ptr, &self.row_ent, &vb, &self.phi_static, &[], ns, m, &mut hphi);
+        let mut out = Mat::<f64>::zeros(m, m);
+        let phi = faer::MatRef::from_row_major_slice(&self.phi_static[..3 * ns * m], 3 * ns, m);
+        let hp = faer::MatRef::from_row_major_slice(&hphi, 3 * ns, m);
+        faer::linalg::matmul::matmul(out.as_mut(), faer::Accum::Replace, phi.transpose(), hp, 1.0, faer::Par::Seq);
+        let mut v = vec![0.0; m * m];
+        for j in 0..m {
+            for i in 0..m {
+                // (symmetrised: the product is symmetric up to round-off)
+                v[j * m + i] = 0.5 * (out[(i, j)] + out[(j, i)]);
+            }
+        }
+        v
+    }
+
+    /// The faces' skew Hessian blocks at positions xs (per surface node), summed per node pair.
+    fn face_skew_blocks(&self, rule: &crate::shape::FaceRule, xs: &[[f64; 3]]) -> Vec<[f64; 3]> {
+        let mut vb = vec![[0.0f64; 3]; self.n_blocks];
+        let (mut xl, mut vl) = (Vec::new(), Vec::new());
+        for (loc, ids) in self.faces.iter().zip(&self.face_blocks) {
+            xl.clear();
+            xl.extend(loc.iter().map(|&a| xs[a as usize]));
+            vl.resize(loc.len() * loc.len(), [0.0; 3]);
+            surface::face_volume_hessian_skew(rule, &xl, &mut vl);
+            for (v, &id) in vl.iter().zip(ids) {
+                let b = &mut vb[id as usize];
+                b[0] += v[0];
+                b[1] += v[1];
+                b[2] += v[2];
+            }
+        }
+        vb
     }
 
     /// Adds the cavity terms at displacement u (bodies at `kin`, pressure p) into r (−p ∂V/∂z),
     /// r_body (the pressure forces at rigid-body nodes) and kl (the lower triangle of
     /// −p ∂²V/∂z², when given and p ≠ 0). Returns (V, ∂V/∂z).
     #[allow(clippy::too_many_arguments)]
-    fn add(&self, red: &Reduction, cav: &surface::Cavity, u: &[[f64; 3]], kin: &[BodyKin], p: f64, r: &mut [f64], r_body: &mut [f64], kl: Option<&mut Mat<f64>>) -> (f64, Vec<f64>) {
+    fn add(&self, red: &Reduction, cav: &surface::Cavity, z: &[f64], u: &[[f64; 3]], kin: &[BodyKin], p: f64, r: &mut [f64], r_body: &mut [f64], kl: Option<&mut Mat<f64>>) -> (f64, Vec<f64>) {
         let model = red.model;
         let x0 = &model.mesh.nodes;
         let m = red.dim();
@@ -1232,13 +1397,50 @@ impl CavityProj {
             }
         }
         let mut dvol = vec![0.0; m];
-        {
+        if ns > 0 {
             let mut dm = faer::MatMut::from_column_major_slice_mut(&mut dvol, m, 1);
             let gs = faer::MatRef::from_column_major_slice(&g[..3 * nst], 3 * nst, 1);
             faer::linalg::matmul::matmul(dm.as_mut(), faer::Accum::Replace, faer::MatRef::from_row_major_slice(&self.phi_static, 3 * nst, m).transpose(), gs, 1.0, faer::Par::Seq);
             if ns > nst {
                 let gd = faer::MatRef::from_column_major_slice(&g[3 * nst..], 3 * (ns - nst), 1);
                 faer::linalg::matmul::matmul(dm, faer::Accum::Add, faer::MatRef::from_row_major_slice(&phi_dyn, 3 * (ns - nst), m).transpose(), gd, 1.0, faer::Par::Seq);
+            }
+        }
+        // the static faces' exact cubic: T[z] = Σ_r z_r T_r, then M = A₀ + T[z]
+        let mut kl = kl;
+        if let Some(cu) = &self.cubic {
+            let mut tz = vec![0.0; m * m];
+            for (rr, &zr) in z.iter().enumerate().take(cu.t_cols) {
+                if zr != 0.0 {
+                    for (a, b) in tz.iter_mut().zip(&cu.t[rr * m * m..(rr + 1) * m * m]) {
+                        *a += zr * b;
+                    }
+                }
+            }
+            let mut az = vec![0.0; m];
+            let mut tzz = vec![0.0; m];
+            for j in 0..m {
+                let zj = z[j];
+                if zj != 0.0 {
+                    for i in 0..m {
+                        az[i] += cu.a0[j * m + i] * zj;
+                        tzz[i] += tz[j * m + i] * zj;
+                    }
+                }
+            }
+            let dot = |a: &[f64]| a.iter().zip(z).map(|(x, y)| x * y).sum::<f64>();
+            volume += cu.v0 + dot(&cu.g0) + 0.5 * dot(&az) + dot(&tzz) / 6.0;
+            for i in 0..m {
+                dvol[i] += cu.g0[i] + az[i] + 0.5 * tzz[i];
+            }
+            if p != 0.0 {
+                if let Some(kl) = kl.as_mut() {
+                    for j in 0..m {
+                        for i in j..m {
+                            kl[(i, j)] -= p * (cu.a0[j * m + i] + tz[j * m + i]);
+                        }
+                    }
+                }
             }
         }
         for (ri, dv) in r.iter_mut().zip(&dvol) {
@@ -1250,20 +1452,7 @@ impl CavityProj {
         add_body_nodal(model, &self.nodes, &g, -p, r_body);
         let Some(kl) = kl else { return (volume, dvol) };
         // H on the surface nodes: the faces' skew blocks, then H Φ_s
-        let mut vb = vec![[0.0f64; 3]; self.n_blocks];
-        let mut vl = Vec::new();
-        for (loc, ids) in self.faces.iter().zip(&self.face_blocks) {
-            xl.clear();
-            xl.extend(loc.iter().map(|&a| xs[a as usize]));
-            vl.resize(loc.len() * loc.len(), [0.0; 3]);
-            surface::face_volume_hessian_skew(&cav.rule, &xl, &mut vl);
-            for (v, &id) in vl.iter().zip(ids) {
-                let b = &mut vb[id as usize];
-                b[0] += v[0];
-                b[1] += v[1];
-                b[2] += v[2];
-            }
-        }
+        let vb = self.face_skew_blocks(&cav.rule, &xs);
         let mut hphi = vec![0.0; 3 * ns * m];
         let axpy = |o: &mut [f64], c: f64, x: &[f64]| {
             for (a, b) in o.iter_mut().zip(x) {
@@ -1384,6 +1573,12 @@ pub struct RomState {
 
 impl<'a> RomPath<'a> {
     pub fn new(model: &'a Model, basis: &'a Basis, sample: &'a Sample, from: Loads, to: Loads, functionals: Vec<Functional>) -> Result<Self, RomError> {
+        RomPath::with_tensors(model, basis, sample, from, to, functionals, None)
+    }
+
+    /// [`RomPath::new`], the cavity's design-independent tensors looked up in (and added to)
+    /// `tensors` instead of built for this path alone.
+    pub fn with_tensors(model: &'a Model, basis: &'a Basis, sample: &'a Sample, from: Loads, to: Loads, functionals: Vec<Functional>, tensors: Option<&CavityTensors>) -> Result<Self, RomError> {
         let red = Reduction::new(model, basis)?;
         let ne = model.mesh.n_elements();
         if let Some(&e) = sample.elements.iter().find(|&&e| e >= ne) {
@@ -1420,7 +1615,11 @@ impl<'a> RomPath<'a> {
         let mut scratch = Vec::new();
         let mut jac_const = Vec::new();
         let elem_items = if sample.is_points() { sample.distinct_elements() } else { sample.elements.clone() };
-        let cavity = model.cavity.as_ref().map(|cav| CavityProj::new(&red, cav, &is_static, &kin0));
+        let cavity = model.cavity.as_ref().map(|cav| {
+            let q0 = vec![0.0; model.n_reduced()];
+            let u0 = model.dofs.expand(&model.mesh.nodes, &q0, &from.presc, &kin0);
+            CavityProj::new(&red, cav, &is_static, &kin0, presc_fixed, &u0, tensors)
+        });
         for nodes in elem_items.iter().map(|&e| model.mesh.element(e)) {
             jac_const.push(linear(nodes).then(|| {
                 let mut j = Vec::new();
@@ -1509,7 +1708,7 @@ impl<'a> RomPath<'a> {
         // cavity: exact volume, −p ∂V/∂z and −p ∂²V/∂z² over every face and boundary edge
         let p = loads.pressure;
         let (volume, dvol) = match (&model.cavity, &self.cavity) {
-            (Some(cav), Some(cp)) => cp.add(&self.red, cav, &u, &kin, p, &mut r, &mut r_body, kl.as_mut()),
+            (Some(cav), Some(cp)) => cp.add(&self.red, cav, z, &u, &kin, p, &mut r, &mut r_body, kl.as_mut()),
             _ => (0.0, vec![0.0; m]),
         };
         let k = self.red.basis.k;
@@ -2196,11 +2395,18 @@ impl<'a> PathModel for RomPath<'a> {
 pub struct Rom {
     pub basis: Basis,
     pub sample: Sample,
+    /// the cavity tensors of its paths, built on first use per dof layout
+    #[serde(skip)]
+    pub tensors: CavityTensors,
 }
 
 impl Rom {
+    pub fn new(basis: Basis, sample: Sample) -> Rom {
+        Rom { basis, sample, tensors: CavityTensors::default() }
+    }
+
     /// The reduced path model of `model` under loads from `from` (λ = 0) to `to` (λ = 1).
     pub fn path<'a>(&'a self, model: &'a Model, from: Loads, to: Loads, functionals: Vec<Functional>) -> Result<RomPath<'a>, RomError> {
-        RomPath::new(model, &self.basis, &self.sample, from, to, functionals)
+        RomPath::with_tensors(model, &self.basis, &self.sample, from, to, functionals, Some(&self.tensors))
     }
 }

@@ -513,7 +513,10 @@ pub fn correct<M: PathModel>(m: &M, q0: &[f64], lam0: f64, c_target: Option<f64>
             let (imax, rmax) = ev.r.iter().enumerate().fold((0, 0.0f64), |a, (i, v)| if v.abs() > a.1 { (i, v.abs()) } else { a });
             let n = ev.r.len();
             let tail = norm(&ev.r[n.saturating_sub(2)..]);
-            eprintln!("[newton] it {it} |r| {rn:.3e} (max {rmax:.2e} at {imax}/{n}, last two {tail:.2e}) scale {scale:.3e} dc {dc:.3e} g0 {g0:.3e} s {s:.3} λ {lam:.7} definite {definite}");
+            let after = accepted.as_ref().map_or(f64::NAN, |a| norm(&a.2.r));
+            eprintln!(
+                "[newton] it {it} |r| {rn:.3e} (max {rmax:.2e} at {imax}/{n}, last two {tail:.2e}) scale {scale:.3e} dc {dc:.3e} g0 {g0:.3e} s {s:.3} λ {lam:.7} definite {definite} → |r| {after:.3e}"
+            );
         }
         let Some((qt, lt, et)) = accepted else {
             return fail(NewtonFailure::Inversion, its, indefinite_seen);

@@ -1223,6 +1223,9 @@ impl CavityProj {
         }
         let (lin, other): (Vec<usize>, Vec<usize>) = all.into_iter().partition(|&f| cav.face_nodes[f].iter().all(|&n| is_static(n)));
         let m = red.dim();
+        if crate::continuation::trace_enabled() {
+            eprintln!("[rom] cavity: {} faces reduced as a cubic, {} (with rigid-body nodes) per evaluation, {} boundary edges", lin.len(), other.len(), cav.edges.len());
+        }
         let sub = CavityProj::over(red, cav, &lin, false, is_static, kin0, None);
         let x0 = &red.model.mesh.nodes;
         let xs: Vec<[f64; 3]> = sub.nodes.iter().map(|&n| [x0[n][0] + u0[n][0], x0[n][1] + u0[n][1], x0[n][2] + u0[n][2]]).collect();
@@ -1618,7 +1621,11 @@ impl<'a> RomPath<'a> {
         let cavity = model.cavity.as_ref().map(|cav| {
             let q0 = vec![0.0; model.n_reduced()];
             let u0 = model.dofs.expand(&model.mesh.nodes, &q0, &from.presc, &kin0);
-            CavityProj::new(&red, cav, &is_static, &kin0, presc_fixed, &u0, tensors)
+            // the cubic's tensor T is design-independent only where Φ's Cartesian rows are (the
+            // Cylindrical and Piola frames rotate/stretch them with each design's geometry, and
+            // rebuilding T per path costs more than the Hessian products it replaces)
+            let cubic_ok = presc_fixed && basis.frame == Frame::Cartesian;
+            CavityProj::new(&red, cav, &is_static, &kin0, cubic_ok, &u0, tensors)
         });
         for nodes in elem_items.iter().map(|&e| model.mesh.element(e)) {
             jac_const.push(linear(nodes).then(|| {
@@ -2331,7 +2338,8 @@ impl<'a> PathModel for RomPath<'a> {
         let loads = self.loads(lam);
         let (r, k, st, scale, min_det) = self.evaluate(z, &loads, tangent).map_err(elem_eval)?;
         let control = (self.volume_control && self.red.model.cavity.is_some()).then(|| (st.volume, st.dvol.clone()));
-        if tangent && !self.functionals.is_empty() {
+        // (residual-only evaluations too: Newton's converged iterate is often one)
+        if !self.functionals.is_empty() {
             if let Ok(mut last) = self.last.lock() {
                 *last = Some((z.to_vec(), lam, st));
             }

@@ -199,12 +199,16 @@ fn sweep_throughput() {
 }
 
 /// [`sweep_throughput`]'s designs on the committed reduced model of the `sweep` preset
-/// (studies/rom/sweep-k80) and on the full model, one design at a time on one thread each:
+/// (studies/rom/sweep-k80, -k80-points, -k40-points) and on the full model, one design at a time on one thread each:
 /// CPU s per design of both and the reduced model's Ω error.
 fn sweep_throughput_rom() {
     use twistopt::sweep::{evaluate_design, problem_from_str, Shard, SweepConfig};
     // the committed reduced models of the sweep preset: element-level and quadrature-level ECSW
-    let models = [("sweep-k80", "80 modes, 10 pressure modes, ECSW 140 of 256 elements"), ("sweep-k80-points", "80 modes, 10 pressure modes, ECSW 922 quadrature points in 235 of 256 elements")];
+    let models = [
+        ("sweep-k80", "80 modes, 10 pressure modes, ECSW 140 of 256 elements"),
+        ("sweep-k80-points", "80 modes, 10 pressure modes, ECSW 922 quadrature points in 235 of 256 elements"),
+        ("sweep-k40-points", "40 modes, 10 pressure modes, ECSW 695 quadrature points in 212 of 256 elements"),
+    ];
     let config = |rom_dir: &std::path::Path| {
         let text = format!(
             "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\nrom = {}\nrom_fallback = inf\n[sweep]\nr_mm = [8.660254037844386, 17.0]\nl_mm = [10, 20]\nalpha_deg = [120, 300]\n",

@@ -117,6 +117,46 @@ fn hyper_reduced_tangent_is_the_derivative_of_its_residual() {
     let _ = Rom::new(basis, sample);
 }
 
+/// The lagged cavity Hessian (`RomPath::set_cavity_hessian_lag`): residuals are the exact
+/// ones everywhere; the path follower's tangent is the exact one where the cavity Hessian is
+/// computed, reuses it within the tolerance (differing from the exact tangent by the cavity
+/// term's change, nonzero and small) and is exact again beyond it; `evaluate` is always exact.
+#[test]
+fn lagged_cavity_hessian_keeps_residuals_exact() {
+    let (sm, _) = scene(SceneKind::Free);
+    let model = &sm.model;
+    let basis = random_basis(model.dofs.n_nodal(), 6, 5);
+    let sample = Sample::all(model.mesh.n_elements());
+    let exact = RomPath::new(model, &basis, &sample, sm.loads(0.0, 0.0), sm.loads(40.0, 0.0), Vec::new()).unwrap();
+    let mut lag = RomPath::new(model, &basis, &sample, sm.loads(0.0, 0.0), sm.loads(40.0, 0.0), Vec::new()).unwrap();
+    lag.set_cavity_hessian_lag(1e-2);
+    let m = exact.dim();
+    let z1: Vec<f64> = (0..m).map(|i| 0.05 * ((i * 31 % 7) as f64 / 7.0 - 0.3)).collect();
+    let scaled = |f: f64| z1.iter().map(|v| v * f).collect::<Vec<f64>>();
+    fn kdiff<K: std::ops::Index<(usize, usize), Output = f64>>(a: &K, b: &K, m: usize) -> f64 {
+        let d = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| (a[(i, j)] - b[(i, j)]).abs()).fold(0.0, f64::max);
+        let s = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| b[(i, j)].abs()).fold(0.0, f64::max);
+        d / s
+    }
+    for (label, z, expect_lagged) in [("first", scaled(1.0), false), ("near", scaled(1.005), true), ("far", scaled(1.2), false)] {
+        let el = lag.eval(&z, 0.8, true, None).unwrap();
+        let ex = exact.eval(&z, 0.8, true, None).unwrap();
+        let rs = ex.r.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        for (a, b) in el.r.iter().zip(&ex.r) {
+            assert!((a - b).abs() <= 1e-12 * rs, "{label}: residual {a} vs exact {b}");
+        }
+        let d = kdiff(el.k.as_ref().unwrap(), ex.k.as_ref().unwrap(), m);
+        if expect_lagged {
+            assert!(d > 1e-12 && d < 1e-2, "{label}: lagged tangent off the exact one by {d:.3e} (expected small, nonzero)");
+        } else {
+            assert!(d <= 1e-12, "{label}: tangent off the exact one by {d:.3e}");
+        }
+        // the public evaluation is exact
+        let (_, k, ..) = lag.evaluate(&z, &lag.loads(0.8), true).unwrap();
+        assert!(kdiff(k.as_ref().unwrap(), ex.k.as_ref().unwrap(), m) <= 1e-12, "{label}: evaluate is not exact");
+    }
+}
+
 /// A reduced pressure space spanning every element's own pressure space (Ψ = I) is the full
 /// model's element-wise condensation: the same residual and tangent. A smaller space (the
 /// constant pressure plus a few smooth fields) has a tangent that is the derivative of its

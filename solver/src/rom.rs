@@ -956,6 +956,11 @@ pub struct RomPath<'a> {
     points: Option<PointSample>,
     /// the cavity's surface-node data
     cavity: Option<CavityProj>,
+    /// see [`RomPath::set_cavity_hessian_lag`] (0: exact)
+    cavity_lag: f64,
+    /// the cavity volume's Hessian ∂²V/∂z² (lower triangle, the part not reduced as an exact
+    /// cubic) and the state it was computed at
+    cavity_hessian: std::sync::Mutex<Option<(Vec<f64>, Mat<f64>)>>,
 }
 
 /// K += α A B where A B is symmetric: only its lower triangle is computed, into the lower
@@ -1366,7 +1371,20 @@ impl CavityProj {
     /// r_body (the pressure forces at rigid-body nodes) and kl (the lower triangle of
     /// −p ∂²V/∂z², when given and p ≠ 0). Returns (V, ∂V/∂z).
     #[allow(clippy::too_many_arguments)]
-    fn add(&self, red: &Reduction, cav: &surface::Cavity, z: &[f64], u: &[[f64; 3]], kin: &[BodyKin], p: f64, r: &mut [f64], r_body: &mut [f64], kl: Option<&mut Mat<f64>>) -> (f64, Vec<f64>) {
+    #[allow(clippy::type_complexity)]
+    fn add(
+        &self,
+        red: &Reduction,
+        cav: &surface::Cavity,
+        z: &[f64],
+        u: &[[f64; 3]],
+        kin: &[BodyKin],
+        p: f64,
+        r: &mut [f64],
+        r_body: &mut [f64],
+        kl: Option<&mut Mat<f64>>,
+        lagged: Option<(&std::sync::Mutex<Option<(Vec<f64>, Mat<f64>)>>, f64)>,
+    ) -> (f64, Vec<f64>) {
         let model = red.model;
         let x0 = &model.mesh.nodes;
         let m = red.dim();
@@ -1375,13 +1393,6 @@ impl CavityProj {
         let xs: Vec<[f64; 3]> = self.nodes.iter().map(|&n| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]]).collect();
         let (mut scratch, mut phi_dyn) = (Vec::new(), Vec::new());
         red.jacobian(&self.nodes[nst..], kin, &mut scratch, &mut phi_dyn);
-        let row = |a: usize| -> &[f64] {
-            if a < nst {
-                &self.phi_static[3 * a * m..3 * (a + 1) * m]
-            } else {
-                &phi_dyn[3 * (a - nst) * m..3 * (a - nst + 1) * m]
-            }
-        };
         // volume and its gradient on the surface nodes
         let mut volume = 0.0;
         let mut g = vec![0.0; 3 * ns];
@@ -1454,6 +1465,46 @@ impl CavityProj {
         }
         add_body_nodal(model, &self.nodes, &g, -p, r_body);
         let Some(kl) = kl else { return (volume, dvol) };
+        // the lagged Hessian, where the state is near the one it was computed at
+        if let Some((cache, tol)) = lagged {
+            if let Ok(mut c) = cache.lock() {
+                let near = c.as_ref().is_some_and(|(zc, _)| {
+                    let (d, n) = zc.iter().zip(z).fold((0.0, 0.0), |(d, n), (a, b)| (d + (a - b) * (a - b), n + a * a));
+                    n > 0.0 && d <= tol * tol * n
+                });
+                if !near {
+                    let mut h = Mat::<f64>::zeros(m, m);
+                    self.hessian_lower(red, cav, &xs, &phi_dyn, &mut h, 1.0);
+                    *c = Some((z.to_vec(), h));
+                }
+                if let Some((_, h)) = c.as_ref() {
+                    for j in 0..m {
+                        for i in j..m {
+                            kl[(i, j)] -= p * h[(i, j)];
+                        }
+                    }
+                    return (volume, dvol);
+                }
+            }
+        }
+        self.hessian_lower(red, cav, &xs, &phi_dyn, kl, -p);
+        (volume, dvol)
+    }
+
+    /// kl += alpha ∂²V/∂z² (lower triangle) of the faces and edges of this projection (without
+    /// the exact cubic's part), at the surface-node positions `xs`.
+    fn hessian_lower(&self, red: &Reduction, cav: &surface::Cavity, xs: &[[f64; 3]], phi_dyn: &[f64], kl: &mut Mat<f64>, alpha: f64) {
+        let m = red.dim();
+        let ns = self.nodes.len();
+        let nst = self.n_static;
+        let row = |a: usize| -> &[f64] {
+            if a < nst {
+                &self.phi_static[3 * a * m..3 * (a + 1) * m]
+            } else {
+                &phi_dyn[3 * (a - nst) * m..3 * (a - nst + 1) * m]
+            }
+        };
+        let mut xl = Vec::new();
         // H on the surface nodes: the faces' skew blocks, then H Φ_s
         let vb = self.face_skew_blocks(&cav.rule, &xs);
         let mut hphi = vec![0.0; 3 * ns * m];
@@ -1490,11 +1541,10 @@ impl CavityProj {
         fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
             faer::MatRef::from_row_major_slice(v, rows, m)
         }
-        lower_product(kl, rm(&self.phi_static, 3 * nst, m).transpose(), rm(&hphi[..3 * nst * m], 3 * nst, m), -p);
+        lower_product(kl, rm(&self.phi_static, 3 * nst, m).transpose(), rm(&hphi[..3 * nst * m], 3 * nst, m), alpha);
         if ns > nst {
-            lower_product(kl, rm(&phi_dyn, 3 * (ns - nst), m).transpose(), rm(&hphi[3 * nst * m..], 3 * (ns - nst), m), -p);
+            lower_product(kl, rm(&phi_dyn, 3 * (ns - nst), m).transpose(), rm(&hphi[3 * nst * m..], 3 * (ns - nst), m), alpha);
         }
-        (volume, dvol)
     }
 }
 
@@ -1672,7 +1722,34 @@ impl<'a> RomPath<'a> {
         } else {
             None
         };
-        Ok(RomPath { red, sample, from, to, functionals, volume_control: model.cavity.is_some(), rule, mixed, jac_const, last: Default::default(), elem_items, points, cavity })
+        Ok(RomPath {
+            red,
+            sample,
+            from,
+            to,
+            functionals,
+            volume_control: model.cavity.is_some(),
+            rule,
+            mixed,
+            jac_const,
+            last: Default::default(),
+            elem_items,
+            points,
+            cavity,
+            cavity_lag: 0.0,
+            cavity_hessian: Default::default(),
+        })
+    }
+
+    /// Let the path follower's tangents (the [`PathModel`] evaluations) reuse the cavity's load
+    /// stiffness −p ∂²V/∂z² while the state is within `tol` (relative, in z) of where it was last
+    /// computed: within one step's Newton corrections it is then computed once. The residual,
+    /// the volume and ∂V/∂z stay exact, so converged states are the same (to the solver's
+    /// tolerance); only the corrector's convergence rate and the converged states' tangents
+    /// (stability, dλ/dc) change, by O(tol). [`RomPath::evaluate`] (sensitivities, factors handed
+    /// on) stays exact. 0 (the default): exact everywhere.
+    pub fn set_cavity_hessian_lag(&mut self, tol: f64) {
+        self.cavity_lag = if tol.is_finite() && tol > 0.0 { tol } else { 0.0 };
     }
 
     /// J of item `i` (see `jac_const`): the cached one, or built into `buf`.
@@ -1692,6 +1769,11 @@ impl<'a> RomPath<'a> {
 
     /// Residual, tangent and state at (z, loads).
     pub fn evaluate(&self, z: &[f64], loads: &Loads, want_k: bool) -> Result<(Vec<f64>, Option<Mat<f64>>, RomState, f64, f64), ElementError> {
+        self.evaluate_with(z, loads, want_k, false)
+    }
+
+    /// [`RomPath::evaluate`]; with `lag`, the cavity Hessian as [`RomPath::set_cavity_hessian_lag`] allows.
+    fn evaluate_with(&self, z: &[f64], loads: &Loads, want_k: bool, lag: bool) -> Result<(Vec<f64>, Option<Mat<f64>>, RomState, f64, f64), ElementError> {
         let model = self.red.model;
         let x0 = &model.mesh.nodes;
         let m = self.red.dim();
@@ -1715,7 +1797,10 @@ impl<'a> RomPath<'a> {
         // cavity: exact volume, −p ∂V/∂z and −p ∂²V/∂z² over every face and boundary edge
         let p = loads.pressure;
         let (volume, dvol) = match (&model.cavity, &self.cavity) {
-            (Some(cav), Some(cp)) => cp.add(&self.red, cav, z, &u, &kin, p, &mut r, &mut r_body, kl.as_mut()),
+            (Some(cav), Some(cp)) => {
+                let lagged = (lag && self.cavity_lag > 0.0).then_some((&self.cavity_hessian, self.cavity_lag));
+                cp.add(&self.red, cav, z, &u, &kin, p, &mut r, &mut r_body, kl.as_mut(), lagged)
+            }
             _ => (0.0, vec![0.0; m]),
         };
         let k = self.red.basis.k;
@@ -2336,7 +2421,7 @@ impl<'a> PathModel for RomPath<'a> {
     }
     fn eval(&self, z: &[f64], lam: f64, tangent: bool, _lin: Option<&[f64]>) -> Result<Eval<Mat<f64>>, EvalFailure> {
         let loads = self.loads(lam);
-        let (r, k, st, scale, min_det) = self.evaluate(z, &loads, tangent).map_err(elem_eval)?;
+        let (r, k, st, scale, min_det) = self.evaluate_with(z, &loads, tangent, true).map_err(elem_eval)?;
         let control = (self.volume_control && self.red.model.cavity.is_some()).then(|| (st.volume, st.dvol.clone()));
         // (residual-only evaluations too: Newton's converged iterate is often one)
         if !self.functionals.is_empty() {

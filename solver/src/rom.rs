@@ -294,6 +294,9 @@ pub struct Reduction<'a> {
     phi: std::borrow::Cow<'a, [f64]>,
     /// the frame's per-node maps (None: Cartesian)
     maps: Option<FrameMaps>,
+    /// Φ column-major (for the lift: k column updates stream through Φ once, where n row dot
+    /// products of length k each end in a horizontal sum; measured 9 % of a reduced run)
+    phi_cols: Vec<f64>,
 }
 
 /// Per-node frame maps: for each free node, its three unknowns, the 3×3 matrix T (model
@@ -465,7 +468,14 @@ impl<'a> Reduction<'a> {
                 std::borrow::Cow::Owned(phi)
             }
         };
-        Ok(Reduction { model, basis, phi, maps })
+        let (n, k) = (basis.n, basis.k);
+        let mut phi_cols = vec![0.0; n * k];
+        for i in 0..n {
+            for j in 0..k {
+                phi_cols[j * n + i] = phi[i * k + j];
+            }
+        }
+        Ok(Reduction { model, basis, phi, maps, phi_cols })
     }
     /// Row i of Φ.
     #[inline]
@@ -481,7 +491,7 @@ impl<'a> Reduction<'a> {
     pub fn lift(&self, z: &[f64]) -> Vec<f64> {
         let (n, k) = (self.basis.n, self.basis.k);
         let mut q = vec![0.0; n];
-        let phi = faer::MatRef::from_row_major_slice(&self.phi, n, k);
+        let phi = faer::MatRef::from_column_major_slice(&self.phi_cols, n, k);
         let zm = faer::MatRef::from_column_major_slice(&z[..k], k, 1);
         faer::linalg::matmul::matmul(faer::MatMut::from_column_major_slice_mut(&mut q, n, 1), faer::Accum::Replace, phi, zm, 1.0, faer::Par::Seq);
         q.extend_from_slice(&z[k..]);

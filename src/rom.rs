@@ -601,6 +601,7 @@ pub fn validation_row(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, index: usi
     row["status_rom"] = serde_json::json!([rf.status.to_string(), rb.status.to_string()]);
     row["indicator_rom"] = serde_json::json!([rf.rom_indicator, rb.rom_indicator]);
     row["cpu_s_rom"] = serde_json::json!(cr);
+    row["newton_iterations_rom"] = serde_json::json!(rf.newton_iterations + rb.newton_iterations);
     Ok(row)
 }
 

@@ -130,9 +130,17 @@ pub struct Stage {
     pub max_evaluations: usize,
     pub xtol_rel: f64,
     pub ftol_rel: f64,
-    /// the stage's reduced model (`rom = "DIR"`): the model, its training box and its fallback
-    /// threshold
-    pub rom: Option<(std::sync::Arc<twistopt_solver::rom::Rom>, Vec<crate::geometry::ParamSpec>, Option<f64>)>,
+    /// the stage's reduced model (`rom = "DIR"`)
+    pub rom: Option<StageRom>,
+}
+
+/// A stage's reduced model: the model, its training box and scenes, its fallback threshold.
+#[derive(Clone, Debug)]
+pub struct StageRom {
+    pub rom: std::sync::Arc<twistopt_solver::rom::Rom>,
+    pub design_box: Vec<crate::geometry::ParamSpec>,
+    pub scenes: Vec<crate::scene::SceneKind>,
+    pub fallback: Option<f64>,
 }
 
 /// One FE evaluation in the optimiser's terms (minimisation, scaled variables).
@@ -301,9 +309,10 @@ impl OptProblem {
                 p.opts.formulation = twistopt_solver::element::Formulation::standard(st.mesh.kind);
                 // a stage runs on its own reduced model or on the full one (a problem-level
                 // fidelity.rom is for another mesh)
-                p.opts.rom = st.rom.as_ref().map(|r| r.0.clone());
-                p.opts.rom_box = st.rom.as_ref().map(|r| r.1.clone()).unwrap_or_default();
-                p.opts.rom_fallback = st.rom.as_ref().and_then(|r| r.2);
+                p.opts.rom = st.rom.as_ref().map(|r| r.rom.clone());
+                p.opts.rom_box = st.rom.as_ref().map(|r| r.design_box.clone()).unwrap_or_default();
+                p.opts.rom_scenes = st.rom.as_ref().map(|r| r.scenes.clone()).unwrap_or_default();
+                p.opts.rom_fallback = st.rom.as_ref().and_then(|r| r.fallback);
                 p.max_evaluations = st.max_evaluations;
                 p.xtol_rel = st.xtol_rel;
                 p.ftol_rel = st.ftol_rel;
@@ -1127,7 +1136,10 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
                 so.mesh = mesh;
                 so.formulation = twistopt_solver::element::Formulation::standard(mesh.kind);
                 let (r, m) = crate::rom::load(std::path::Path::new(dir), &so).map_err(|e| anyhow!("optimise.stages[{k}].rom: {e:#}"))?;
-                Some((std::sync::Arc::new(r), m.design_box.clone(), m.fallback_indicator))
+                if let Some(why) = v.scenes.iter().find_map(|&s| crate::rom::untrained_scene(&m.options.scenes, s)) {
+                    bail!("optimise.stages[{k}].rom: {why}");
+                }
+                Some(StageRom { rom: std::sync::Arc::new(r), design_box: m.design_box.clone(), scenes: m.options.scenes.clone(), fallback: m.fallback_indicator })
             }
         };
         let label = st.preset.clone().or(st.mesh.clone()).unwrap_or_default();

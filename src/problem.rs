@@ -475,6 +475,9 @@ impl Problem {
             if let Some(why) = crate::rom::outside_box(&manifest.design_box, &v.geometry.design) {
                 bail!("fidelity.rom: {why}");
             }
+            if let Some(why) = v.scenes.iter().find_map(|&k| crate::rom::untrained_scene(&manifest.options.scenes, k)) {
+                bail!("fidelity.rom: {why}");
+            }
             v.rom = Some((std::sync::Arc::new(rom), manifest));
         }
         Ok(v)
@@ -490,6 +493,7 @@ impl Problem {
         if let Some((rom, m)) = &v.rom {
             o.rom = Some(rom.clone());
             o.rom_box = m.design_box.clone();
+            o.rom_scenes = m.options.scenes.clone();
             o.rom_fallback = self.fidelity.rom_fallback.or(m.fallback_indicator).filter(|t| t.is_finite());
         }
         o

@@ -112,6 +112,9 @@ pub struct SceneOptions {
     pub rom: Option<std::sync::Arc<twistopt_solver::rom::Rom>>,
     /// the design box the reduced model was trained on: a design outside it is refused
     pub rom_box: Vec<crate::geometry::ParamSpec>,
+    /// the scenes the reduced model was trained on: another scene is refused (its constraints
+    /// select other modes; empty: not checked)
+    pub rom_scenes: Vec<SceneKind>,
     /// At `rom` fidelity: a scene whose reduced ramp ends with an error indicator above this
     /// value, or in a solver failure (divergence, iteration or step limit), is run again on the
     /// full model (None: never).
@@ -131,6 +134,7 @@ impl SceneOptions {
             cap_load: true,
             rom: None,
             rom_box: Vec::new(),
+            rom_scenes: Vec::new(),
             rom_fallback: None,
         }
     }
@@ -329,6 +333,11 @@ impl SceneModel {
     pub fn build(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind) -> Result<SceneModel, SceneError> {
         if let Some(why) = opts.rom.as_ref().and_then(|_| crate::rom::outside_box(&opts.rom_box, &geom.design)) {
             return Err(SceneError::OutsideRom(why));
+        }
+        if opts.rom.is_some() {
+            if let Some(why) = crate::rom::untrained_scene(&opts.rom_scenes, kind) {
+                return Err(SceneError::OutsideRom(why));
+            }
         }
         let spec = opts.mesh.with_sector(opts.sector).with_kind(opts.formulation.kind);
         let am = build_mesh(geom, &spec)?;

@@ -399,6 +399,15 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     let out = ev(&["--set", "design.range=\"extended\"", "--set", "design.l_mm=9.5"], "ev3");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("outside the reduced model's training box"), "{}", String::from_utf8_lossy(&out.stderr));
+    // … and a scene it was not trained on (the pure-twist scenes hold the cap's axial
+    // translation: their limit point needs modes the free and blocked ramps do not hold)
+    assert_eq!(m["options"]["scenes"], serde_json::json!(["free", "blocked"]));
+    let out = ev(&["--set", "scenes.run=[\"pure-twist\", \"pure-twist-blocked\"]"], "ev4");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not on 'pure-twist'"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = bin().args(["rom", "train", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--scenes", "pure-twist", "--out"]).arg(dir.join("rom-bad")).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("must hold a mode's twist and torque scenes"), "{}", String::from_utf8_lossy(&out.stderr));
     // gradient at ROM fidelity: the reduced sensitivities of every scene functional to r, l, α,
     // p and μ equal central differences of the reduced model's re-solved equilibria
     let out = bin()

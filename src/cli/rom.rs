@@ -3,6 +3,7 @@
 
 use crate::problem::Problem;
 use crate::rom::{Manifest, TrainOptions, FORMAT_VERSION};
+use crate::scene::SceneKind;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
@@ -141,6 +142,11 @@ pub struct TrainArgs {
     /// precomputed tensors, a cheaper tangent) or piola (pushed forward from the box centre's mesh).
     #[arg(long, default_value = "cylindrical", value_parser = ["cylindrical", "cartesian", "piola"])]
     pub frame: String,
+    /// Scenes whose ramps are the snapshots, comma-separated (default: the problem's
+    /// scenes.run): free,blocked for the combined mode, pure-twist,pure-twist-blocked for the
+    /// pure-twist mode, or all four. The model refuses any other scene.
+    #[arg(long, value_name = "SCENE,SCENE")]
+    pub scenes: Option<String>,
 }
 
 pub fn run(args: &RomArgs) -> Result<()> {
@@ -154,16 +160,49 @@ pub fn run(args: &RomArgs) -> Result<()> {
 /// The scene options of a problem file on the full model, without fields: what a reduced model
 /// is trained for and validated against.
 fn full_options(path: &std::path::Path, set: &[String]) -> Result<crate::scene::SceneOptions> {
+    Ok(full_options_and_scenes(path, set)?.0)
+}
+
+/// [`full_options`] and the problem's scenes (`scenes.run`).
+fn full_options_and_scenes(path: &std::path::Path, set: &[String]) -> Result<(crate::scene::SceneOptions, Vec<SceneKind>)> {
     let problem = Problem::load(path, set)?;
     let v = problem.validate()?;
     let mut opts = problem.scene_options(&v);
     opts.rom = None;
+    opts.rom_scenes.clear();
     opts.keep_fields = false;
-    Ok(opts)
+    Ok((opts, v.scenes))
+}
+
+/// The training scenes: `--scenes` (comma-separated) or the problem's; a complete pair of one
+/// mode at least (free + blocked, or pure-twist + pure-twist-blocked), for validation.
+fn training_scenes(list: Option<&str>, problem: &[SceneKind]) -> Result<Vec<SceneKind>> {
+    let scenes: Vec<SceneKind> = match list {
+        Some(s) => s
+            .split(',')
+            .map(|n| SceneKind::parse(n.trim()).ok_or_else(|| anyhow::anyhow!("--scenes: unknown scene '{}' (expected free, blocked, pure-twist or pure-twist-blocked)", n.trim())))
+            .collect::<Result<_>>()?,
+        None => problem.to_vec(),
+    };
+    let mut uniq = Vec::new();
+    for k in scenes {
+        if !uniq.contains(&k) {
+            uniq.push(k);
+        }
+    }
+    let has = |k: SceneKind| uniq.contains(&k);
+    if !((has(SceneKind::Free) && has(SceneKind::Blocked)) || (has(SceneKind::PureTwist) && has(SceneKind::PureTwistBlocked))) {
+        anyhow::bail!(
+            "the training scenes ({}) must hold a mode's twist and torque scenes: free + blocked or pure-twist + pure-twist-blocked (--scenes, or the problem's scenes.run)",
+            uniq.iter().map(|k| k.name()).collect::<Vec<_>>().join(", ")
+        );
+    }
+    Ok(uniq)
 }
 
 fn train(a: &TrainArgs) -> Result<()> {
-    let opts = full_options(&a.problem, &a.set)?;
+    let (mut opts, problem_scenes) = full_options_and_scenes(&a.problem, &a.set)?;
+    let scenes = training_scenes(a.scenes.as_deref(), &problem_scenes)?;
     if !(a.tau >= 0.0 && a.tau < 1.0) {
         anyhow::bail!("--tau {} must be in [0, 1)", a.tau);
     }
@@ -187,8 +226,10 @@ fn train(a: &TrainArgs) -> Result<()> {
             "piola" => twistopt_solver::rom::Frame::Piola,
             _ => twistopt_solver::rom::Frame::Cylindrical,
         },
+        scenes,
         ..TrainOptions::default()
     };
+    opts.rom_scenes = t.scenes.clone();
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let designs = crate::rom::training_designs(t.designs);
     let jobs = designs.len() * t.scenes.len();
@@ -260,7 +301,7 @@ fn train(a: &TrainArgs) -> Result<()> {
 }
 
 fn validate(a: &ValidateArgs) -> Result<()> {
-    let opts = full_options(&a.of.problem, &a.of.set)?;
+    let mut opts = full_options(&a.of.problem, &a.of.set)?;
     if a.designs == 0 {
         anyhow::bail!("--designs must be positive");
     }
@@ -268,12 +309,18 @@ fn validate(a: &ValidateArgs) -> Result<()> {
         anyhow::bail!("--p-max {} must be in (0, 1000] kPa", a.p_max);
     }
     let (rom, mut manifest) = crate::rom::load(&a.of.rom, &opts)?;
+    opts.rom_scenes = manifest.options.scenes.clone();
     let rom = std::sync::Arc::new(rom);
     let out = a.out.clone().unwrap_or_else(|| a.of.rom.join(format!("validation-seed{}", a.seed)));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut input = serde_json::json!({ "rom": a.of.rom, "mesh": manifest.mesh, "k": manifest.k, "kp": manifest.kp, "seed": a.seed, "p_max_kPa": a.p_max });
     if let Some(f) = &a.full_from {
         input["full_from"] = serde_json::json!(f);
+    }
+    let (twist, torque) = crate::rom::scene_pair(&opts.rom_scenes);
+    if twist != SceneKind::Free {
+        // (free + blocked validations, written before the pair was recorded, resume as they are)
+        input["scenes"] = serde_json::json!([twist.name(), torque.name()]);
     }
     let full_rows: std::collections::BTreeMap<u64, serde_json::Value> = match &a.full_from {
         Some(f) => {
@@ -356,7 +403,7 @@ fn validate(a: &ValidateArgs) -> Result<()> {
 }
 
 fn check(a: &CheckArgs) -> Result<()> {
-    let opts = full_options(&a.of.problem, &a.of.set)?;
+    let mut opts = full_options(&a.of.problem, &a.of.set)?;
     if a.designs == 0 {
         anyhow::bail!("--designs must be positive");
     }
@@ -364,6 +411,7 @@ fn check(a: &CheckArgs) -> Result<()> {
         anyhow::bail!("--p-min {} and --p-max {} must satisfy -1000 <= p-min < p-max <= 1000 kPa", a.p_min, a.p_max);
     }
     let (rom, manifest) = crate::rom::load(&a.of.rom, &opts)?;
+    opts.rom_scenes = manifest.options.scenes.clone();
     let rom = std::sync::Arc::new(rom);
     let out = a.out.clone().unwrap_or_else(|| a.of.rom.join(format!("check-seed{}", a.seed)));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;

@@ -318,6 +318,9 @@ pub struct SweepConfig {
     pub shard: Shard,
     /// ramp end (kPa): load.p_max_kPa
     pub p_max_kpa: f64,
+    /// only these grid indices (sorted, distinct; `--indices`), e.g. a sweep's best designs
+    /// re-run at another fidelity; None: the whole grid
+    pub indices: Option<Vec<u64>>,
 }
 
 /// The problem file's text → (problem without `[sweep]`, the `[sweep]` table if any), with
@@ -375,7 +378,36 @@ impl SweepConfig {
             LoadPlan::Ramp(p) => p,
             LoadPlan::Targets(_) => bail!("load: a sweep ramps each design to failure: give load.p_max_kPa (e.g. --set load.p_max_kPa=150) instead of load.pressures_kPa"),
         };
-        Ok(SweepConfig { problem, grid, shard, p_max_kpa })
+        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None })
+    }
+
+    /// Restrict the sweep to these grid indices (sorted and de-duplicated; each must be below
+    /// the grid's size).
+    pub fn with_indices(mut self, mut indices: Vec<u64>) -> Result<SweepConfig> {
+        if indices.is_empty() {
+            bail!("--indices: no grid index given");
+        }
+        let n = self.grid.len();
+        if let Some(i) = indices.iter().find(|i| **i >= n) {
+            bail!("--indices: grid index {i} is out of range (grid '{}' has {n} designs, indices 0 … {})", self.grid.name, n - 1);
+        }
+        indices.sort_unstable();
+        indices.dedup();
+        self.indices = Some(indices);
+        Ok(self)
+    }
+
+    /// Whether grid index `i` is in this sweep's selection (all when no `--indices`).
+    pub fn selected(&self, i: u64) -> bool {
+        self.indices.as_ref().is_none_or(|s| s.binary_search(&i).is_ok())
+    }
+
+    /// Number of designs this run covers: the shard's designs, within the selection.
+    pub fn size(&self) -> u64 {
+        match &self.indices {
+            None => self.shard.size(self.grid.len()),
+            Some(s) => s.iter().filter(|i| self.shard.contains(**i)).count() as u64,
+        }
     }
 
     /// The effective problem as JSON without the design (and without output switches); a
@@ -423,14 +455,19 @@ impl SweepConfig {
     pub fn manifest(&self) -> Result<Manifest> {
         let problem = self.problem_json();
         let fidelity = self.fidelity()?;
-        let key = serde_json::to_string(&json!({"grid": self.grid, "problem": problem, "fidelity": fidelity}))?;
+        let key = match &self.indices {
+            // (a sweep of the whole grid keeps the hash earlier versions wrote)
+            None => serde_json::to_string(&json!({"grid": self.grid, "problem": problem, "fidelity": fidelity}))?,
+            Some(s) => serde_json::to_string(&json!({"grid": self.grid, "problem": problem, "fidelity": fidelity, "indices": s}))?,
+        };
         let mut h = fnv::FnvHasher::default();
         std::hash::Hasher::write(&mut h, key.as_bytes());
         Ok(Manifest {
             format: FORMAT.into(),
             n_designs: self.grid.len(),
-            n_designs_shard: self.shard.size(self.grid.len()),
+            n_designs_shard: self.size(),
             grid: self.grid.clone(),
+            indices: self.indices.clone(),
             fidelity,
             problem,
             sweep_hash: format!("{:016x}", std::hash::Hasher::finish(&h)),
@@ -452,7 +489,11 @@ pub struct Manifest {
     /// FNV-1a 64 of grid + problem + fidelity (the same for every shard of one sweep)
     pub sweep_hash: String,
     pub shard: Shard,
+    /// designs of this directory (its shard within `indices`)
     pub n_designs_shard: u64,
+    /// the grid indices selected by `--indices` (absent: the whole grid)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub indices: Option<Vec<u64>>,
 }
 
 impl Manifest {
@@ -492,6 +533,10 @@ impl Manifest {
         }
         if self.shard != other.shard {
             why.push(format!("shard {}/{} vs {}/{}", self.shard.index, self.shard.count, other.shard.index, other.shard.count));
+        }
+        if self.indices != other.indices {
+            let d = |s: &Option<Vec<u64>>| s.as_ref().map_or("the whole grid".to_string(), |s| format!("{} selected indices", s.len()));
+            why.push(format!("--indices: {} vs {}", d(&self.indices), d(&other.indices)));
         }
         (!why.is_empty()).then(|| why.join("; "))
     }
@@ -951,15 +996,16 @@ pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(
     }
     let done: BTreeSet<String> = read.rows.iter().map(|r| r.id.clone()).collect();
     let n = cfg.grid.len();
-    let pending: Vec<(u64, Design)> = (0..n).filter(|i| cfg.shard.contains(*i)).map(|i| (i, cfg.design(i))).filter(|(i, d)| !done.contains(&design_id(*i, d))).collect();
-    let shard_size = cfg.shard.size(n);
+    let pending: Vec<(u64, Design)> = (0..n).filter(|i| cfg.shard.contains(*i) && cfg.selected(*i)).map(|i| (i, cfg.design(i))).filter(|(i, d)| !done.contains(&design_id(*i, d))).collect();
+    let shard_size = cfg.size();
     log(&format!(
-        "grid {}: {n} designs ({}); shard {}/{}: {shard_size}; done {}; to run {} at {} (p_max {} kPa, scenes {})",
+        "grid {}: {n} designs ({}){}; shard {}/{}: {shard_size}; done {}; to run {} at {} (p_max {} kPa, scenes {})",
         cfg.grid.name,
         cfg.grid.shape(),
+        cfg.indices.as_ref().map_or(String::new(), |s| format!(", {} selected by --indices", s.len())),
         cfg.shard.index,
         cfg.shard.count,
-        shard_size as usize - pending.len(),
+        (shard_size as usize).saturating_sub(pending.len()),
         pending.len(),
         manifest.fidelity,
         cfg.p_max_kpa,
@@ -1145,7 +1191,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(usize, Vec<u64>, Vec<PathB
     let f = first.expect("at least one directory");
     let mut manifest = f.clone();
     manifest.shard = Shard::default();
-    manifest.n_designs_shard = manifest.n_designs;
+    manifest.n_designs_shard = manifest.indices.as_ref().map_or(manifest.n_designs, |s| s.len() as u64);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     if let Some(old) = Manifest::read(out)? {
         if let Some(why) = old.mismatch(&manifest) {
@@ -1382,5 +1428,48 @@ mod tests {
         let (problem, section) = problem_from_str("[load]\npressures_kPa = [10]\n[sweep]\ngrid = \"table1\"\n", "t", &[]).unwrap();
         let e = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap_err().to_string();
         assert!(e.contains("load.p_max_kPa"), "{e}");
+    }
+
+    #[test]
+    fn indices_select_grid_designs_and_are_part_of_the_manifest() {
+        // r = 3 mm is outside the box: every design is an instant invalid-geometry row
+        let text = "[load]\np_max_kPa = 10\n[fidelity]\nmesh = \"12x4x1\"\n[sweep]\nr_mm = [3.0]\nl_mm = [10, 12, 14, 16]\nalpha_deg = [60, 90]\n";
+        let cfg = |idx: Option<Vec<u64>>| {
+            let (problem, section) = problem_from_str(text, "t", &[]).unwrap();
+            let c = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap();
+            match idx {
+                Some(i) => c.with_indices(i),
+                None => Ok(c),
+            }
+        };
+        let e = cfg(Some(vec![8])).unwrap_err().to_string();
+        assert!(e.contains("out of range") && e.contains("8 designs"), "{e}");
+        assert!(cfg(Some(vec![])).is_err());
+        let c = cfg(Some(vec![5, 1, 5])).unwrap();
+        assert_eq!(c.indices, Some(vec![1, 5]));
+        assert_eq!(c.size(), 2);
+        let dir = std::env::temp_dir().join(format!("twistopt-sweep-indices-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let opts = RunOptions { threads: 1, progress: false, outputs: false };
+        let rep = run_sweep(&c, &dir, &opts, |_| {}).unwrap();
+        assert_eq!((rep.computed, rep.n_designs_shard), (2, 2));
+        let rows = read_rows(&dir.join(RESULTS)).unwrap().rows;
+        let mut got: Vec<u64> = rows.iter().map(|r| r.index).collect();
+        got.sort_unstable();
+        assert_eq!(got, vec![1, 5]);
+        assert_eq!(rows.iter().find(|r| r.index == 5).unwrap().design["l_mm"], 14.0);
+        let m = Manifest::read(&dir).unwrap().unwrap();
+        assert_eq!((m.indices.clone(), m.n_designs, m.n_designs_shard), (Some(vec![1, 5]), 8, 2));
+        // the whole grid's hash is unchanged by the new field; a selection has its own
+        assert_ne!(m.sweep_hash, cfg(None).unwrap().manifest().unwrap().sweep_hash);
+        // resuming: the same selection runs nothing; another selection or the whole grid is refused
+        assert_eq!(run_sweep(&c, &dir, &opts, |_| {}).unwrap().computed, 0);
+        let e = run_sweep(&cfg(Some(vec![1])).unwrap(), &dir, &opts, |_| {}).unwrap_err().to_string();
+        assert!(e.contains("--indices"), "{e}");
+        assert!(run_sweep(&cfg(None).unwrap(), &dir, &opts, |_| {}).is_err());
+        // the manifest of a whole-grid sweep has no indices key (older directories still resume)
+        let whole = serde_json::to_value(cfg(None).unwrap().manifest().unwrap()).unwrap();
+        assert!(whole.get("indices").is_none());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -25,6 +25,11 @@ pub struct SweepArgs {
     /// Run only shard I of N (0 <= I < N): the designs whose grid index i has i mod N = I.
     #[arg(long, value_name = "I/N")]
     pub shard: Option<String>,
+    /// Run only these grid indices (the `index` of a sweep's rows): a comma- or
+    /// whitespace-separated list, or @FILE holding one (e.g. a sweep's best designs re-run at
+    /// full order into a new --out directory).
+    #[arg(long, value_name = "I,J,…|@FILE")]
+    pub indices: Option<String>,
     /// Override a problem value (section.key=value, as for `evaluate`; also sweep.*). Repeatable.
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE", allow_hyphen_values = true)]
     pub set: Vec<String>,
@@ -67,13 +72,36 @@ pub fn config(args: &SweepArgs) -> Result<SweepConfig> {
         None => Shard::default(),
     };
     let (problem, section) = load_problem(&args.problem, &sets)?;
-    SweepConfig::new(problem, section.as_ref(), args.grid.as_deref(), shard)
+    let cfg = SweepConfig::new(problem, section.as_ref(), args.grid.as_deref(), shard)?;
+    match &args.indices {
+        None => Ok(cfg),
+        Some(spec) => cfg.with_indices(parse_indices(spec)?),
+    }
+}
+
+/// `--indices`: "I,J …" or "@FILE" (the same list in a file; `#` starts a comment).
+pub fn parse_indices(spec: &str) -> Result<Vec<u64>> {
+    let text = match spec.trim().strip_prefix('@') {
+        Some(path) => std::fs::read_to_string(path.trim()).map_err(|e| anyhow::anyhow!("--indices @{path}: cannot read the file ({e})"))?,
+        None => spec.to_string(),
+    };
+    let mut out = Vec::new();
+    for line in text.lines() {
+        let line = line.split('#').next().unwrap_or("");
+        for tok in line.split(|c: char| c == ',' || c.is_whitespace()).filter(|t| !t.is_empty()) {
+            out.push(tok.parse::<u64>().map_err(|_| anyhow::anyhow!("--indices: '{tok}' is not a grid index (a non-negative integer)"))?);
+        }
+    }
+    if out.is_empty() {
+        anyhow::bail!("--indices '{spec}': no grid index given");
+    }
+    Ok(out)
 }
 
 pub fn run(args: &SweepArgs) -> Result<()> {
     let cfg = config(args)?;
     if args.count {
-        println!("grid {}: {} designs ({}); shard {}/{}: {} designs", cfg.grid.name, cfg.grid.len(), cfg.grid.shape(), cfg.shard.index, cfg.shard.count, cfg.shard.size(cfg.grid.len()));
+        println!("grid {}: {} designs ({}); shard {}/{}: {} designs", cfg.grid.name, cfg.grid.len(), cfg.grid.shape(), cfg.shard.index, cfg.shard.count, cfg.size());
         for a in &cfg.grid.axes {
             let (lo, hi) = a.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
             println!("  {}: {} values from {lo} to {hi}", a.name, a.values.len());
@@ -103,4 +131,21 @@ pub fn run_merge(args: &SweepMergeArgs) -> Result<()> {
         println!("shards missing: {missing:?} (run `sweep --out {}` without --shard to compute their designs)", args.out.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_indices;
+
+    #[test]
+    fn indices_lists_and_files() {
+        assert_eq!(parse_indices("1646, 1508 12\n7").unwrap(), vec![1646, 1508, 12, 7]);
+        assert!(parse_indices("3,-1").unwrap_err().to_string().contains("'-1'"));
+        assert!(parse_indices(" , ").is_err());
+        let f = std::env::temp_dir().join(format!("twistopt-indices-{}.txt", std::process::id()));
+        std::fs::write(&f, "# top designs\n10 # best\n11,12\n").unwrap();
+        assert_eq!(parse_indices(&format!("@{}", f.display())).unwrap(), vec![10, 11, 12]);
+        let _ = std::fs::remove_file(&f);
+        assert!(parse_indices("@/nonexistent/twistopt-indices").unwrap_err().to_string().contains("cannot read"));
+    }
 }

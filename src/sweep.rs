@@ -44,6 +44,18 @@ pub const MANIFEST: &str = "manifest.json";
 /// The letter's Table I steps by parameter name (bounds come from [`DesignSpace::actuator`]).
 pub const TABLE1_STEPS: &[(&str, f64)] = &[(P_R, 0.5), (P_L, 1.0), (P_ALPHA, 2.0)];
 
+/// Relative tolerance of the ballooning test `max radius ≤ limit`. A scene that stops at the
+/// ballooning limit has its last state located on the path to `locate_tol` (1e-6 relative in
+/// the load), so its radius lands within a few nm of the limit, on either side (measured on the
+/// Table-I grid: up to 2.8e-9 mm above). A test at round-off (1e-12) called 5 060 of its 39 864
+/// designs infeasible for that; 1e-6 of 28.75 mm is 29 nm.
+pub const RADIUS_LIMIT_RTOL: f64 = 1e-6;
+
+/// `radius ≤ limit` to [`RADIUS_LIMIT_RTOL`].
+pub fn within_radius_limit(radius_mm: f64, limit_mm: f64) -> bool {
+    radius_mm <= limit_mm * (1.0 + RADIUS_LIMIT_RTOL)
+}
+
 /// Largest number of designs a grid may have.
 const MAX_DESIGNS: u64 = 100_000_000;
 
@@ -507,6 +519,11 @@ impl Manifest {
         Ok(Some(m))
     }
 
+    /// The ballooning limit the sweep ran with (`scenes.ballooning_limit_mm`).
+    pub fn ballooning_limit_mm(&self) -> Option<f64> {
+        self.problem.get("scenes").and_then(|s| s.get("ballooning_limit_mm")).and_then(Value::as_f64).filter(|x| x.is_finite())
+    }
+
     /// Write atomically (temporary file + rename).
     pub fn write(&self, dir: &Path) -> Result<()> {
         write_atomic(&dir.join(MANIFEST), &(serde_json::to_string_pretty(self)? + "\n"))
@@ -616,6 +633,14 @@ pub struct ModeSummary {
     pub feasible: bool,
 }
 
+impl ModeSummary {
+    /// Ω available and the max radius at its pressure within the ballooning limit
+    /// ([`within_radius_limit`]).
+    pub fn is_feasible(&self, limit_mm: f64) -> bool {
+        self.omega_j_m3.is_some() && self.max_radius_mm.is_some_and(|r| within_radius_limit(r, limit_mm))
+    }
+}
+
 /// One design's result: one line of `results.jsonl`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Row {
@@ -700,7 +725,7 @@ pub fn mode_summary(free: Option<&SceneResult>, blocked: Option<&SceneResult>, l
                 (Some(a), Some(c)) => fin(a.max(c)),
                 _ => None,
             };
-            m.feasible = m.omega_j_m3.is_some() && m.max_radius_mm.is_some_and(|r| r <= limit_mm * (1.0 + 1e-12));
+            m.feasible = m.is_feasible(limit_mm);
         }
         let pb = [Some(pc), p_radius_limit(&f.steps, limit_mm), p_radius_limit(&b.steps, limit_mm)].into_iter().flatten().fold(f64::INFINITY, f64::min);
         if pb.is_finite() && pb > 0.0 {
@@ -861,6 +886,27 @@ pub struct RowsRead {
 /// Read `results.jsonl`. A last line without its newline (a write cut by a kill) is dropped
 /// unless it is a complete row; unparseable lines and repeated ids (the first occurrence is
 /// kept) are skipped.
+impl Row {
+    /// Recompute `feasible` (primary mode and every mode) from the stored Ω and max radius, so
+    /// that rows written before a change of the rule ([`RADIUS_LIMIT_RTOL`]) are judged by the
+    /// current one.
+    pub fn refresh_feasibility(&mut self, limit_mm: f64) {
+        self.primary.feasible = self.primary.is_feasible(limit_mm);
+        for m in self.modes.values_mut() {
+            m.feasible = m.is_feasible(limit_mm);
+        }
+    }
+}
+
+/// [`Row::refresh_feasibility`] on every row, with the manifest's ballooning limit.
+pub fn refresh_feasibility(rows: &mut [Row], manifest: &Manifest) {
+    if let Some(limit) = manifest.ballooning_limit_mm() {
+        for r in rows {
+            r.refresh_feasibility(limit);
+        }
+    }
+}
+
 pub fn read_rows(path: &Path) -> Result<RowsRead> {
     let mut bytes = Vec::new();
     match std::fs::File::open(path) {
@@ -1112,6 +1158,9 @@ pub fn best_row(rows: &[Row]) -> Option<&Row> {
 
 /// `summary.json`, `results.csv` and the maps of a sweep directory.
 pub fn write_outputs(out: &Path, manifest: &Manifest, rows: &[Row], wall_time_s: Option<f64>, computed: Option<usize>, threads: usize) -> Result<Vec<PathBuf>> {
+    let mut rows = rows.to_vec();
+    refresh_feasibility(&mut rows, manifest);
+    let rows = &rows[..];
     let mut files = Vec::new();
     let csv = out.join("results.csv");
     write_csv(&csv, &manifest.grid, rows)?;
@@ -1204,6 +1253,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(usize, Vec<u64>, Vec<PathB
     manifest.write(out)?;
     let mut list: Vec<Row> = rows.into_values().collect();
     list.sort_by_key(|r| r.index);
+    refresh_feasibility(&mut list, &manifest);
     let mut text = String::new();
     for r in &list {
         text.push_str(&serde_json::to_string(r)?);
@@ -1360,6 +1410,23 @@ mod tests {
         assert_eq!((m.omega_j_m3, m.feasible), (None, false));
         // feasible when the limit is higher
         assert!(mode_summary(Some(&free), Some(&blocked), 40.0).feasible);
+        // a scene stopped at the ballooning limit lands within the event's location tolerance of
+        // it: 2.8e-9 mm above (measured on the Table-I grid) is at the limit, 1 µm above is not
+        assert!(mode_summary(Some(&free), Some(&blocked), 30.0 - 2.8e-9).feasible);
+        assert!(!mode_summary(Some(&free), Some(&blocked), 30.0 - 1e-3).feasible);
+        // rows written under another rule are judged again from their stored values
+        let mut r = row(3);
+        r.primary.max_radius_mm = Some(28.75 + 2.8e-9);
+        r.modes.insert("combined".into(), r.primary.clone());
+        r.refresh_feasibility(28.75);
+        assert!(r.primary.feasible && r.modes["combined"].feasible);
+        r.primary.max_radius_mm = Some(28.76);
+        r.refresh_feasibility(28.75);
+        assert!(!r.primary.feasible);
+        r.primary.omega_j_m3 = None;
+        r.primary.max_radius_mm = Some(20.0);
+        r.refresh_feasibility(28.75);
+        assert!(!r.primary.feasible, "no Ω, not feasible");
     }
 
     fn row(index: u64) -> Row {

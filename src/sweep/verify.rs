@@ -107,7 +107,8 @@ fn mode_of<'a>(r: &'a Row, mode: Option<&str>) -> Option<&'a ModeSummary> {
 /// sweep ran both pairs of scenes.
 pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<&str>) -> Result<(Value, String)> {
     let manifest = Manifest::read(sweep_dir)?.ok_or_else(|| anyhow!("{}: no manifest.json (not a sweep directory)", sweep_dir.display()))?;
-    let rows: Vec<Row> = read_rows(&sweep_dir.join(RESULTS))?.rows;
+    let mut rows: Vec<Row> = read_rows(&sweep_dir.join(RESULTS))?.rows;
+    super::refresh_feasibility(&mut rows, &manifest);
     let best = read_best(opt_dir)?;
     let limit = problem.scenes.ballooning_limit_mm;
     let mut warnings = Vec::new();
@@ -139,7 +140,7 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
     let rel = (best.omega_j_m3 - s_omega) / s_omega.abs();
     let within = rel >= -0.01;
     let (dist, per) = design_distance(&sb.design, &best.design);
-    let opt_feasible = !FAILED.contains(&best.status.as_str()) && best.max_radius_mm.is_some_and(|r| r <= limit * (1.0 + 1e-12));
+    let opt_feasible = !FAILED.contains(&best.status.as_str()) && best.max_radius_mm.is_some_and(|r| super::within_radius_limit(r, limit));
     let ratio = if best.evaluations > 0 { Some(fe_rows as f64 / best.evaluations as f64) } else { None };
     // the sweep design nearest to the optimiser's
     let nearest = rows.iter().filter(|r| r.status == "ok").map(|r| (design_distance(&r.design, &best.design).0, r)).min_by(|a, b| a.0.total_cmp(&b.0)).map(

@@ -29,7 +29,7 @@ use crate::geometry::{ActuatorGeometry, L_TUBE, R0_ENVELOPE, T_WALL};
 use crate::meshing::{build_mesh, ActuatorMesh, MeshError, MeshSpec};
 use std::time::Instant;
 use twistopt_solver::adjoint::Functional;
-use twistopt_solver::continuation::{correct, follow, ContinuationOptions, LoadPath, PathEnd, PathStats, PointKind, Stop};
+use twistopt_solver::continuation::{correct, follow, ContinuationOptions, Control, LoadPath, PathEnd, PathStats, PointKind, Stop};
 use twistopt_solver::dofmap::{BodyDof, Constraints, Cyclic, DofSpec, RigidBody};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::Material;
@@ -862,8 +862,13 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
     };
     let sm = SceneModel::build(geom, opts, kind)?;
     // a short segment from a converged step: try it in one step (the step control shrinks it
-    // if needed)
-    let short = ContinuationOptions { initial: 1.0, max: 1.0, ..opts.steps.clone() };
+    // if needed). Between the branch's last regular step and its pressure maximum the path is
+    // nearly singular in p, so the segment goes under volume control there (under load control
+    // its steps shrink towards the fold: 500 steps on a circular section whose two scenes'
+    // maxima coincide to 1e-7)
+    let to_fold = r.status == SceneStatus::LimitPoint && i + 2 == r.steps.len();
+    let start_control = if to_fold { Control::Functional } else { Control::Load };
+    let short = ContinuationOptions { initial: 1.0, max: 1.0, start_control, max_steps: 50, ..opts.steps.clone() };
     let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false, false);
     r.newton_iterations += path.stats.newton_iterations;
     r.path.add(&path.stats);

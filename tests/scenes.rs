@@ -110,3 +110,27 @@ fn default_bulk_modulus_is_high_enough() {
         assert!(rel(v, base[i]) < 5e-3, "{:?}: {} vs {}", k, v, base[i]);
     }
 }
+
+#[test]
+fn a_step_just_below_the_pressure_maximum_is_solved_under_volume_control() {
+    // Ω by the letter's rule needs each scene's state at the lower of the two failure
+    // pressures; where the two maxima nearly coincide (circular sections), that pressure lies
+    // between a branch's last regular step and its pressure maximum, where the path is nearly
+    // singular in p (under load control the steps shrank towards the fold: 500 steps)
+    let g = ActuatorGeometry::new(&Design::new(5.0 * 3f64.sqrt(), 14.0, 200.0), RangePolicy::TableI).unwrap();
+    let o = opts("coarse");
+    let mut r = run_pressure(&g, &o, SceneKind::Free, &[150.0]).unwrap();
+    assert_eq!(r.status, SceneStatus::LimitPoint, "{}", r.cause);
+    let n = r.steps.len();
+    let (p_fold, p_below) = (r.steps[n - 1].p_kpa, r.steps[n - 2].p_kpa);
+    let p = p_fold - 0.1 * (p_fold - p_below);
+    let steps_before = r.path.steps;
+    twistopt::scene::add_step_at(&g, &o, SceneKind::Free, &mut r, p).unwrap();
+    let added = r.path.steps - steps_before;
+    assert!(added <= 10, "{added} steps for the segment to p = {p} kPa (fold at {p_fold})");
+    // the step is there, between the last regular step and the fold, with θ between theirs
+    let k = r.steps.iter().position(|s| s.p_kpa == p).expect("a step at p");
+    assert_eq!(k, n - 1);
+    let (a, b, c) = (r.steps[k - 1].theta_deg, r.steps[k].theta_deg, r.steps[k + 1].theta_deg);
+    assert!((a - b) * (b - c) >= 0.0, "θ {a} {b} {c} not monotone up to the fold");
+}

@@ -919,6 +919,15 @@ impl<'a, M: PathModel> Follower<'a, M> {
                 }
                 Err(ev) => {
                     let (end, n) = match ev {
+                        // λ_end lies before a fold met under functional control (the fold
+                        // just beyond it): the path ends there, located on c
+                        Event::Fold(n) if ctl == Control::Functional && (n.lam - lam_end) * dir >= 0.0 && (cur.lam - lam_end) * dir < 0.0 => {
+                            let ftol = 1e-10 * lam_end.abs().max(1e-300);
+                            match self.locate_crossing(&cur, &n, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0) {
+                                Some(e) if (e.lam - lam_end).abs() <= ftol => (PathEnd::Completed, e),
+                                _ => (PathEnd::Fold, n),
+                            }
+                        }
                         Event::Stop(i, n) => (PathEnd::Stopped(i), n),
                         Event::Fold(n) => (PathEnd::Fold, n),
                         Event::Instability(n) => (PathEnd::Instability, n),
@@ -984,7 +993,15 @@ impl<'a, M: PathModel> Follower<'a, M> {
     /// the path parameter; the located point is on a's side, within `locate_tol` in λ.
     fn locate_stop(&mut self, a: &Node<M>, b: &Node<M>, ctl: Control, s: &Stop) -> Option<Node<M>> {
         let sg = if s.rising { 1.0 } else { -1.0 };
-        let f = |n: &Node<M>| sg * (n.out[s.output] - s.threshold);
+        let ftol = 1e-10 * s.threshold.abs().max(1e-300);
+        let tol = self.o.locate_tol * a.lam.abs().max(b.lam.abs()).max(1e-300);
+        self.locate_crossing(a, b, ctl, |n: &Node<M>| sg * (n.out[s.output] - s.threshold), ftol, tol)
+    }
+
+    /// Locate where f (negative at a, non-negative at b) crosses zero between nodes a and b by
+    /// Illinois regula falsi on the path parameter: the last state on a's side once the bracket
+    /// is within `tol` in λ, or a state where |f| ≤ ftol.
+    fn locate_crossing(&mut self, a: &Node<M>, b: &Node<M>, ctl: Control, f: impl Fn(&Node<M>) -> f64, ftol: f64, tol: f64) -> Option<Node<M>> {
         let (pa, pb) = (a.param(ctl), b.param(ctl));
         let (mut lo, mut hi) = (0.0f64, 1.0f64);
         let (mut flo, mut fhi) = (f(a), f(b));
@@ -992,8 +1009,6 @@ impl<'a, M: PathModel> Follower<'a, M> {
         let mut lam_hi = b.lam;
         let mut best: Option<Node<M>> = None;
         let mut side = 0i32;
-        let tol = self.o.locate_tol * a.lam.abs().max(b.lam.abs()).max(1e-300);
-        let ftol = 1e-10 * s.threshold.abs().max(1e-300);
         for _ in 0..40 {
             if (lam_hi - lam_lo).abs() <= tol {
                 break;

@@ -571,6 +571,7 @@ mod tests {
             states: Vec::new(),
             rom_indicator: None,
             rom_fallback: None,
+            warm_start_kpa: None,
         }
     }
 

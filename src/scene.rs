@@ -273,7 +273,45 @@ pub struct SceneResult {
     /// full model's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rom_fallback: Option<String>,
+    /// Set when the positive branch started from a nearby design's state ([`WarmStart`]): the
+    /// pressure it was corrected at (the branch has no steps between 0 and it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warm_start_kpa: Option<f64>,
 }
+
+/// The positive branch of a nearby design's scene (same scene, mesh topology and fidelity), to
+/// start a ramp from instead of the unloaded state. One of its states just below its end is
+/// corrected on the new design (at its pressure, or at its cavity volume where the branch ended
+/// at a pressure maximum); it must converge to a stable state below the ballooning limit, else
+/// the ramp starts cold. The path then goes on from there, its first step sized to reach just
+/// past where the nearby branch ended. Stations below the start are not recorded
+/// ([`add_step_at`] reaches such a pressure from the state above it). Used at `rom` fidelity
+/// only (see `run_pressure_once`).
+#[derive(Clone, Debug)]
+pub struct WarmStart {
+    /// converged states (p kPa, cavity volume mm³, state) by rising pressure, the end last
+    pub points: Vec<(f64, f64, Vec<f64>)>,
+    /// the branch ended at a pressure maximum
+    pub fold: bool,
+}
+
+impl WarmStart {
+    /// The positive branch of a scene result (None without two positive states).
+    pub fn of(r: &SceneResult) -> Option<WarmStart> {
+        let mut points: Vec<(f64, f64, Vec<f64>)> = r.steps.iter().zip(&r.states).filter(|(s, _)| s.p_kpa > 0.0 && s.p_kpa.is_finite()).map(|(s, q)| (s.p_kpa, s.cavity_volume_mm3, q.clone())).collect();
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+        (points.len() >= 2).then_some(WarmStart { points, fold: r.status == SceneStatus::LimitPoint })
+    }
+}
+
+/// Warm-start candidates tried per ramp (from the highest).
+const WARM_ATTEMPTS: usize = 2;
+/// A warm start is at least this far below the nearby branch's end (relative, in cavity volume
+/// where the branch ended at a pressure maximum, else in pressure).
+const WARM_GAP: f64 = 0.01;
+/// The first step from a warm start goes this far past the nearby branch's end, relative to
+/// the start's distance to it.
+const WARM_REACH: f64 = 1.1;
 
 /// The reduced model's error indicator at a path state z (reduced coordinates) and pressure
 /// (None on the full model, or where it cannot be evaluated).
@@ -300,6 +338,7 @@ impl SceneResult {
             states: Vec::new(),
             rom_indicator: None,
             rom_fallback: None,
+            warm_start_kpa: None,
         }
     }
 }
@@ -510,7 +549,7 @@ struct ScenePath {
 /// Follow the scene's pressure from the state `q0` at `p0_kpa` to `p_end_kpa` with stations at
 /// `stations_kpa`; the ballooning limit and (for vacuum) self-contact stop it where `stop` says.
 fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
-    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop, false)
+    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop, false, false)
 }
 
 /// [`pressure_path`] with its own path options: on the full model, or on the reduced one when
@@ -526,6 +565,7 @@ fn pressure_path_with(
     stations_kpa: &[f64],
     stop: bool,
     want_indicator: bool,
+    guess: bool,
 ) -> ScenePath {
     let vacuum = p_end_kpa < 0.0;
     let gap = sm.contact_gap();
@@ -550,7 +590,12 @@ fn pressure_path_with(
         };
         // the cavity's load stiffness computed once per step's corrections (exact residual)
         rp.set_cavity_hessian_lag(ROM_CAVITY_HESSIAN_LAG);
-        let res = follow(&rp, q0, lam0, 1.0, &stations, &stops, path_opts);
+        let (q0, lam0, spent) = match solve_guess(&rp, q0, lam0, path_opts, guess) {
+            Ok(v) => v,
+            Err(its) => return ScenePath::guess_failed(its),
+        };
+        let mut res = follow(&rp, &q0, lam0, 1.0, &stations, &stops, path_opts);
+        res.stats.newton_iterations += spent;
         // the indicator at the highest pressure, on this path's reduced model (as
         // `rom_indicator`, without building another)
         let top = res.points.iter().max_by(|a, b| a.lam.total_cmp(&b.lam)).filter(|_| want_indicator && p_end_kpa > 0.0);
@@ -560,8 +605,45 @@ fn pressure_path_with(
         return path;
     }
     let lp = sm.path(from, to, (vacuum && stop).then_some(gap));
-    let res = follow(&lp, q0, lam0, 1.0, &stations, &stops, path_opts);
+    let (q0, lam0, spent) = match solve_guess(&lp, q0, lam0, path_opts, guess) {
+        Ok(v) => v,
+        Err(its) => return ScenePath::guess_failed(its),
+    };
+    let mut res = follow(&lp, &q0, lam0, 1.0, &stations, &stops, path_opts);
+    res.stats.newton_iterations += spent;
     scene_path(sm, opts, &res.points, res.end, res.stats, |lam| lp.loads(lam), &stops, p0_kpa, gap, res.last)
+}
+
+/// With `guess`: Newton from the state `q` (a nearby design's, at the same load), which must
+/// converge to a stable state: (state, iterations), or the iterations spent when it does not.
+/// A path that starts under functional control holds the control functional at its value at q
+/// (λ an unknown: well posed also where the load λ lies beyond this design's maximum).
+fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: bool) -> Result<(Vec<f64>, f64, usize), usize> {
+    if !guess {
+        return Ok((q.to_vec(), lam, 0));
+    }
+    let c = match o.start_control {
+        Control::Functional => match m.eval(q, lam, false, None) {
+            Ok(e) => e.control.map(|c| c.0),
+            Err(_) => return Err(0),
+        },
+        Control::Load => None,
+    };
+    // (converged as tightly as located events: the path takes the state as its start)
+    let tight = twistopt_solver::solve::NewtonOptions { rtol: o.newton.rtol.min(1e-10), ..o.newton.clone() };
+    match correct(m, q, lam, c, &tight, o.mixed_tangent, None, false) {
+        Ok(s) if s.stable => Ok((s.q, s.lam, s.iterations)),
+        Ok(s) => Err(s.iterations),
+        Err((_, its)) => Err(its),
+    }
+}
+
+impl ScenePath {
+    /// A path whose guessed start did not converge to a stable state (no points).
+    fn guess_failed(its: usize) -> ScenePath {
+        let stats = PathStats { newton_iterations: its, failed_iterations: its, failed_attempts: 1, ..PathStats::default() };
+        ScenePath { points: Vec::new(), end: Some((SceneStatus::Divergence, "the warm start did not converge to a stable state".into())), stats, last: None, indicator: None }
+    }
 }
 
 /// A scene path from the points and end of a followed path (full or reduced model).
@@ -732,7 +814,13 @@ impl LimitOutcome {
 /// maximum or instability (located on the path), or at a solver failure. Steps are returned
 /// sorted by pressure.
 pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64]) -> Result<SceneResult, SceneError> {
-    let r = run_pressure_once(geom, opts, kind, targets_kpa)?;
+    run_pressure_warm(geom, opts, kind, targets_kpa, None)
+}
+
+/// [`run_pressure`], the positive branch started from `warm` where it applies (see
+/// [`WarmStart`]; a fallback to the full model starts cold).
+pub fn run_pressure_warm(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64], warm: Option<&WarmStart>) -> Result<SceneResult, SceneError> {
+    let r = run_pressure_once(geom, opts, kind, targets_kpa, warm)?;
     let (Some(_), Some(limit)) = (&opts.rom, opts.rom_fallback) else {
         return Ok(r);
     };
@@ -744,7 +832,7 @@ pub fn run_pressure(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKin
     };
     let mut full = opts.clone();
     full.rom = None;
-    let mut f = run_pressure_once(geom, &full, kind, targets_kpa)?;
+    let mut f = run_pressure_once(geom, &full, kind, targets_kpa, None)?;
     f.rom_indicator = r.rom_indicator;
     f.rom_fallback = Some(why);
     f.newton_iterations += r.newton_iterations;
@@ -768,7 +856,7 @@ pub fn result_options<'a>(opts: &'a SceneOptions, r: &SceneResult) -> std::borro
 /// a step moves the state by a few percent, its Newton corrections by well under 0.2 %.
 const ROM_CAVITY_HESSIAN_LAG: f64 = 2e-3;
 
-fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64]) -> Result<SceneResult, SceneError> {
+fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, targets_kpa: &[f64], warm: Option<&WarmStart>) -> Result<SceneResult, SceneError> {
     let t0 = Instant::now();
     let sm = SceneModel::build(geom, opts, kind)?;
     let mut pos: Vec<f64> = targets_kpa.iter().copied().filter(|p| *p > 0.0 && p.is_finite()).collect();
@@ -784,16 +872,53 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
     let mut stats = PathStats::default();
     // the reduced model's indicator at its path's highest pressure (positive branch)
     let mut indicator: Option<(f64, f64)> = None;
+    let mut warm_start_kpa = None;
     for branch in [pos, neg] {
         let Some(&p_end) = branch.last() else {
             continue;
         };
-        let path = pressure_path_with(&sm, &opts.steps, opts, &q0, 0.0, p_end, &branch[..branch.len() - 1], true, true);
-        stats.add(&path.stats);
+        let stations = &branch[..branch.len() - 1];
+        // a warm start: the positive branch from a nearby design's state (see WarmStart)
+        let mut warmed = None;
+        // (reduced states only: they are modal amplitudes in per-node cylindrical frames, the
+        // same for every design; the full model's Cartesian nodal states of a design 2° away
+        // leave residuals of the order of the forces and indefinite tangents — measured)
+        if let Some(w) = warm.filter(|_| p_end > 0.0 && opts.rom.is_some()) {
+            let (&(p_e, v_e, _), rest) = w.points.split_last().expect("two points");
+            // (at least WARM_GAP from the end: a start closer to it would leave the next design
+            // only closer ones, and the steps from them grow from nothing)
+            let far = |c: &&(f64, f64, Vec<f64>)| if w.fold { c.1 <= (1.0 - WARM_GAP) * v_e } else { c.0 <= (1.0 - WARM_GAP) * p_e };
+            for (p_w, v_w, state) in rest.iter().rev().filter(far).filter(|c| c.0 < p_end && c.2.len() == q0.len()).take(WARM_ATTEMPTS) {
+                let wo = if w.fold && v_e > *v_w && *v_w > 0.0 {
+                    ContinuationOptions { start_control: Control::Functional, initial_functional: Some(WARM_REACH * (v_e - v_w) / v_w), ..opts.steps.clone() }
+                } else {
+                    ContinuationOptions { initial: (WARM_REACH * (p_e - p_w) / (p_end - p_w)).clamp(opts.steps.min, 1.0), ..opts.steps.clone() }
+                };
+                let path = pressure_path_with(&sm, &wo, opts, state, *p_w, p_end, stations, true, true, true);
+                stats.add(&path.stats);
+                if !(path.points.len() > 1 && path.points[0].record.max_radius_mm < opts.ballooning_limit_mm) {
+                    continue;
+                }
+                let p0 = path.points[0].record.p_kpa;
+                warmed = Some((path, p0));
+                break;
+            }
+        }
+        let (path, skip) = match warmed {
+            Some((path, p_w)) => {
+                warm_start_kpa = Some(p_w);
+                (path, 0)
+            }
+            None => {
+                let path = pressure_path_with(&sm, &opts.steps, opts, &q0, 0.0, p_end, stations, true, true, false);
+                stats.add(&path.stats);
+                (path, 1)
+            }
+        };
         if let Some(ind) = path.indicator {
             indicator = Some(ind);
         }
-        for p in path.points.into_iter().skip(1) {
+        for p in path.points.into_iter().skip(skip) {
             steps.push(p.record);
             states.push(p.q);
         }
@@ -827,6 +952,7 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
     Ok(SceneResult {
         rom_indicator,
         rom_fallback: None,
+        warm_start_kpa,
         scene: kind.name().to_string(),
         status: status.0,
         cause: status.1,
@@ -857,19 +983,32 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
         return Ok(());
     }
     let below = r.steps.iter().enumerate().filter(|(_, s)| s.p_kpa * sg >= 0.0 && s.p_kpa * sg < p_kpa * sg).max_by(|a, b| (a.1.p_kpa * sg).total_cmp(&(b.1.p_kpa * sg)));
-    let Some(i) = below.map(|(i, _)| i) else {
+    let Some(mut i) = below.map(|(i, _)| i) else {
         return Ok(());
     };
+    // or, where that is the unloaded state (a warm-started branch has no states between 0 and
+    // its start), from the nearest state above p, not a branch end at a pressure maximum
+    let n = r.steps.len();
+    let end_fold = r.status == SceneStatus::LimitPoint;
+    let above = r.steps.iter().enumerate().filter(|(j, s)| s.p_kpa * sg > p_kpa * sg && !(end_fold && *j + 1 == n)).min_by(|a, b| (a.1.p_kpa * sg).total_cmp(&(b.1.p_kpa * sg)));
+    let mut down = false;
+    if let Some((j, _)) = above {
+        if r.steps[i].p_kpa == 0.0 {
+            i = j;
+            down = true;
+        }
+    }
     let sm = SceneModel::build(geom, opts, kind)?;
     // a short segment from a converged step: try it in one step (the step control shrinks it
     // if needed). Between the branch's last regular step and its pressure maximum the path is
     // nearly singular in p, so the segment goes under volume control there (under load control
     // its steps shrink towards the fold: 500 steps on a circular section whose two scenes'
-    // maxima coincide to 1e-7)
-    let to_fold = r.status == SceneStatus::LimitPoint && i + 2 == r.steps.len();
-    let start_control = if to_fold { Control::Functional } else { Control::Load };
+    // maxima coincide to 1e-7); so does a segment down from a state above p (on a branch that
+    // ends at a pressure maximum, such states lie close to it)
+    let to_fold = end_fold && i + 2 == n;
+    let start_control = if to_fold || down { Control::Functional } else { Control::Load };
     let short = ContinuationOptions { initial: 1.0, max: 1.0, start_control, max_steps: 50, ..opts.steps.clone() };
-    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false, false);
+    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false, false, false);
     r.newton_iterations += path.stats.newton_iterations;
     r.path.add(&path.stats);
     if path.end.is_none() {

@@ -32,7 +32,7 @@ use std::time::Instant;
 use crate::evaluate::{common_pressure, interpolate, omega_at_pressure, select_steps};
 use crate::geometry::{ActuatorGeometry, Design, DesignSpace, RangePolicy, P_ALPHA, P_L, P_R};
 use crate::problem::{apply_override, LoadPlan, Problem, Validated};
-use crate::scene::{run_pressure, SceneKind, SceneOptions, SceneResult, SceneStatus, StepRecord};
+use crate::scene::{run_pressure_warm, SceneKind, SceneOptions, SceneResult, SceneStatus, StepRecord, WarmStart};
 
 /// Format tag of manifests and rows.
 pub const FORMAT: &str = "twistopt-sweep/1";
@@ -244,8 +244,10 @@ pub fn grid_from_section(section: &toml::Table) -> Result<Grid> {
                     _ => bail!("sweep.range must be \"table1\" or \"extended\""),
                 }
             }
+            // (read by SweepConfig::new)
+            "warm_start" => {}
             name if space.get(name).is_some() => axes.push(Axis { name: name.to_string(), values: axis_values(name, v)? }),
-            other => bail!("sweep.{other}: unknown key (expected grid, every, range or a design parameter: {})", space.names().join(", ")),
+            other => bail!("sweep.{other}: unknown key (expected grid, every, range, warm_start or a design parameter: {})", space.names().join(", ")),
         }
     }
     let grid = match (named, axes.is_empty()) {
@@ -281,16 +283,27 @@ fn axis_values(name: &str, v: &toml::Value) -> Result<Vec<f64>> {
     }
 }
 
-/// Shard `I/N` (0 ≤ I < N): the designs whose grid index i has i mod N = I.
+/// Shard `I/N` (0 ≤ I < N): the designs whose grid index i has ⌊i / block⌋ mod N = I (block 1
+/// but with warm starts, where it is a line of the grid's last axis: a line stays in one shard).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Shard {
     pub index: u64,
     pub count: u64,
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub block: u64,
+}
+
+fn one() -> u64 {
+    1
+}
+
+fn is_one(b: &u64) -> bool {
+    *b == 1
 }
 
 impl Default for Shard {
     fn default() -> Self {
-        Shard { index: 0, count: 1 }
+        Shard { index: 0, count: 1, block: 1 }
     }
 }
 
@@ -302,19 +315,24 @@ impl Shard {
         if n == 0 || i >= n {
             return Err(bad());
         }
-        Ok(Shard { index: i, count: n })
+        Ok(Shard { index: i, count: n, block: 1 })
     }
 
     pub fn contains(&self, index: u64) -> bool {
-        index % self.count == self.index
+        (index / self.block.max(1)) % self.count == self.index
     }
 
     /// Number of the grid's designs in this shard.
     pub fn size(&self, n: u64) -> u64 {
-        if n > self.index {
-            (n - self.index).div_ceil(self.count)
+        let b = self.block.max(1);
+        let blocks = n.div_ceil(b);
+        let full = if blocks > self.index { (blocks - self.index).div_ceil(self.count) } else { 0 };
+        // the last block may be short
+        let last = blocks.saturating_sub(1);
+        if full > 0 && last % self.count == self.index {
+            (full - 1) * b + (n - last * b)
         } else {
-            0
+            full * b
         }
     }
 }
@@ -333,6 +351,9 @@ pub struct SweepConfig {
     /// only these grid indices (sorted, distinct; `--indices`), e.g. a sweep's best designs
     /// re-run at another fidelity; None: the whole grid
     pub indices: Option<Vec<u64>>,
+    /// `sweep.warm_start`: each design's positive ramps start from its predecessor's states
+    /// along the grid's last axis ([`crate::scene::WarmStart`])
+    pub warm_start: bool,
 }
 
 /// The problem file's text → (problem without `[sweep]`, the `[sweep]` table if any), with
@@ -390,7 +411,15 @@ impl SweepConfig {
             LoadPlan::Ramp(p) => p,
             LoadPlan::Targets(_) => bail!("load: a sweep ramps each design to failure: give load.p_max_kPa (e.g. --set load.p_max_kPa=150) instead of load.pressures_kPa"),
         };
-        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None })
+        let warm_start = match section.and_then(|s| s.get("warm_start")) {
+            None => false,
+            Some(w) => w.as_bool().ok_or_else(|| anyhow!("sweep.warm_start must be true or false"))?,
+        };
+        let mut shard = shard;
+        if warm_start {
+            shard.block = grid.axes.last().map_or(1, |a| a.values.len().max(1)) as u64;
+        }
+        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None, warm_start })
     }
 
     /// Restrict the sweep to these grid indices (sorted and de-duplicated; each must be below
@@ -484,6 +513,7 @@ impl SweepConfig {
             problem,
             sweep_hash: format!("{:016x}", std::hash::Hasher::finish(&h)),
             shard: self.shard,
+            warm_start: self.warm_start,
         })
     }
 }
@@ -506,6 +536,10 @@ pub struct Manifest {
     /// the grid indices selected by `--indices` (absent: the whole grid)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub indices: Option<Vec<u64>>,
+    /// `sweep.warm_start` (results agree with cold ramps to the path follower's tolerances: an
+    /// unsharded sweep may be resumed with either; shards differ, see [`Shard`])
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub warm_start: bool,
 }
 
 impl Manifest {
@@ -595,6 +629,10 @@ pub struct SceneSummary {
     /// `SceneOptions::rom_fallback`); absent when the reduced result was kept
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rom_fallback: Option<String>,
+    /// with `sweep.warm_start`: the pressure at which the positive ramp started from the
+    /// previous design's state (absent: from the unloaded state)
+    #[serde(default, rename = "warm_start_kPa", skip_serializing_if = "Option::is_none")]
+    pub warm_start_kpa: Option<f64>,
 }
 
 /// The outputs of one mode (free + blocked, or pure-twist + pure-twist-blocked) of a design.
@@ -753,6 +791,7 @@ fn scene_summary(r: &SceneResult) -> SceneSummary {
         wall_time_s: r.wall_time_s,
         rom_indicator: r.rom_indicator,
         rom_fallback: r.rom_fallback.clone(),
+        warm_start_kpa: r.warm_start_kpa,
     }
 }
 
@@ -775,6 +814,15 @@ fn empty_row(index: u64, design: &Design, p_max: f64) -> Row {
 /// Run one design's scenes (one after the other) ramped to `p_max` (or to the ballooning limit
 /// or failure) and summarise them. Never fails: problems are the row's status.
 pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_max: f64) -> Row {
+    evaluate_design_warm(index, design, range, v, opts, p_max, None).0
+}
+
+/// Warm starts for a design's scenes (scene name → state), from a neighbouring design.
+pub type DesignWarm = BTreeMap<String, WarmStart>;
+
+/// [`evaluate_design`], each scene's positive ramp started from `warm` where it applies
+/// ([`crate::scene::WarmStart`]); also returns the warm starts this design offers its neighbour.
+pub fn evaluate_design_warm(index: u64, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_max: f64, warm: Option<&DesignWarm>) -> (Row, DesignWarm) {
     let t0 = Instant::now();
     let mut row = empty_row(index, design, p_max);
     let geom = match ActuatorGeometry::new(design, range) {
@@ -783,7 +831,7 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
             row.status = "invalid-geometry".into();
             row.cause = e.to_string().replace('\n', " ");
             row.wall_time_s = t0.elapsed().as_secs_f64();
-            return row;
+            return (row, DesignWarm::new());
         }
     };
     let plan = LoadPlan::Ramp(p_max);
@@ -805,7 +853,7 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
                 targets.push(p);
             }
         }
-        match run_pressure(&geom, opts, kind, &targets) {
+        match run_pressure_warm(&geom, opts, kind, &targets, warm.and_then(|w| w.get(kind.name()))) {
             Ok(mut r) => {
                 select_steps(&mut r, &plan);
                 results.push(r);
@@ -849,14 +897,22 @@ pub fn evaluate_design(index: u64, design: &Design, range: RangePolicy, v: &Vali
         row.status = if pair && row.primary.omega_j_m3.is_none() { "no-common-pressure".into() } else { "ok".into() };
         row.cause = if ends.is_empty() { format!("all scenes reached p_max = {p_max} kPa") } else { ends.join("; ") };
     }
+    // the branches offered to the next design (reduced results only where the model is)
+    let offer: DesignWarm = results.iter().filter(|r| r.rom_fallback.is_none()).filter_map(|r| Some((r.scene.clone(), WarmStart::of(r)?))).collect();
     row.wall_time_s = t0.elapsed().as_secs_f64();
-    row
+    (row, offer)
 }
 
 /// [`evaluate_design`] with panics turned into rows with status `error`.
 pub fn evaluate_design_guarded(index: u64, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_max: f64) -> Row {
+    evaluate_design_guarded_warm(index, design, range, v, opts, p_max, None).0
+}
+
+/// [`evaluate_design_warm`] with panics turned into rows with status `error` (offering no warm
+/// start).
+pub fn evaluate_design_guarded_warm(index: u64, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_max: f64, warm: Option<&DesignWarm>) -> (Row, DesignWarm) {
     let t0 = Instant::now();
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| evaluate_design(index, design, range, v, opts, p_max))) {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| evaluate_design_warm(index, design, range, v, opts, p_max, warm))) {
         Ok(r) => r,
         Err(e) => {
             let msg = e.downcast_ref::<String>().cloned().or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_else(|| "unknown panic".into());
@@ -864,7 +920,7 @@ pub fn evaluate_design_guarded(index: u64, design: &Design, range: RangePolicy, 
             row.status = "error".into();
             row.cause = format!("the evaluation panicked: {}", msg.replace('\n', " "));
             row.wall_time_s = t0.elapsed().as_secs_f64();
-            row
+            (row, DesignWarm::new())
         }
     }
 }
@@ -1070,20 +1126,36 @@ pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(
         indicatif::ProgressBar::hidden()
     };
     let write_error: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    // with warm starts: the designs in lines along the grid's last axis, each line in order
+    // (a design starts from its predecessor's states), the lines in parallel
+    let line_len = if cfg.warm_start { cfg.grid.axes.last().map_or(1, |a| a.values.len().max(1)) as u64 } else { 1 };
+    let mut lines: Vec<Vec<&(u64, Design)>> = Vec::new();
+    for item in &pending {
+        match lines.last_mut() {
+            Some(l) if l.last().is_some_and(|p| p.0 / line_len == item.0 / line_len) => l.push(item),
+            _ => lines.push(vec![item]),
+        }
+    }
     pool.install(|| {
         use rayon::prelude::*;
-        pending.par_iter().for_each(|(i, d)| {
-            if write_error.lock().map(|e| e.is_some()).unwrap_or(true) {
-                return;
-            }
-            let row = evaluate_design_guarded(*i, d, cfg.grid.range, &v, &sopts, cfg.p_max_kpa);
-            if let Err(e) = writer.append(&row) {
-                if let Ok(mut w) = write_error.lock() {
-                    w.get_or_insert(e);
+        lines.par_iter().for_each(|line| {
+            let mut warm: Option<(u64, DesignWarm)> = None;
+            for (i, d) in line.iter().map(|x| (&x.0, &x.1)) {
+                if write_error.lock().map(|e| e.is_some()).unwrap_or(true) {
+                    return;
                 }
+                // (only from the line's previous grid point)
+                let from = warm.as_ref().filter(|(j, _)| *j + 1 == *i).map(|(_, w)| w);
+                let (row, offer) = evaluate_design_guarded_warm(*i, d, cfg.grid.range, &v, &sopts, cfg.p_max_kpa, from);
+                warm = Some((*i, offer));
+                if let Err(e) = writer.append(&row) {
+                    if let Ok(mut w) = write_error.lock() {
+                        w.get_or_insert(e);
+                    }
+                }
+                pb.set_message(format!("last: #{} {} {:.1} s", row.index, row.status, row.wall_time_s));
+                pb.inc(1);
             }
-            pb.set_message(format!("last: #{} {} {:.1} s", row.index, row.status, row.wall_time_s));
-            pb.inc(1);
         });
     });
     pb.finish_and_clear();
@@ -1301,6 +1373,24 @@ mod tests {
     }
 
     #[test]
+    fn shards_of_lines_cover_the_grid_once() {
+        // (warm starts: a shard holds whole lines of the last axis)
+        for (n, count, block) in [(39_864u64, 7u64, 151u64), (10, 3, 4), (9, 4, 3), (5, 1, 5), (3, 4, 2)] {
+            let mut seen = vec![0; n as usize];
+            for index in 0..count {
+                let s = Shard { index, count, block };
+                let members: Vec<u64> = (0..n).filter(|&i| s.contains(i)).collect();
+                assert_eq!(members.len() as u64, s.size(n), "n {n} shard {index}/{count} block {block}");
+                for i in members {
+                    seen[i as usize] += 1;
+                    assert!(((i / block) * block..(i / block + 1) * block).filter(|&j| j < n).all(|j| s.contains(j)));
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1));
+        }
+    }
+
+    #[test]
     fn stepped_values_include_the_end() {
         assert_eq!(stepped_values("x", 10.0, 20.0, 5.0).unwrap(), vec![10.0, 15.0, 20.0]);
         assert_eq!(stepped_values("x", 60.0, 360.0, 100.0).unwrap(), vec![60.0, 160.0, 260.0, 360.0]);
@@ -1377,6 +1467,7 @@ mod tests {
             states: Vec::new(),
             rom_indicator: None,
             rom_fallback: None,
+            warm_start_kpa: None,
         }
     }
 

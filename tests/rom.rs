@@ -606,6 +606,37 @@ fn rom_train_then_evaluate_and_sweep_at_rom_fidelity() {
     assert!(sm.contains("rom:"), "{sm}");
     let smj: serde_json::Value = serde_json::from_str(&sm).unwrap();
     assert!(smj["rom_fallbacks"]["designs"].as_u64().is_some(), "{sm}");
+    // warm starts along α (sweep.warm_start): each design's ramps start from its predecessor's
+    // states near their ends; the rows agree with cold ramps to the path tolerances, for far
+    // fewer Newton iterations
+    let line = |warm: bool, out: &str| {
+        let o = bin()
+            .args(["sweep", "problems/sweep-example.toml", "--threads", "1", "--set", "sweep.l_mm=[14]", "--set", "sweep.alpha_deg=[100, 102, 104, 106, 108]", "--set", "fidelity.rom_fallback=inf"])
+            .args(["--set", &format!("sweep.warm_start={warm}"), "--fidelity"])
+            .arg(format!("rom:{}", romdir.display()))
+            .arg("--out")
+            .arg(dir.join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let mut rows: Vec<serde_json::Value> = std::fs::read_to_string(dir.join(out).join("results.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        rows.sort_by_key(|r| r["index"].as_u64());
+        rows
+    };
+    let (cold, warm) = (line(false, "line-cold"), line(true, "line-warm"));
+    let its = |rows: &[serde_json::Value]| rows.iter().flat_map(|r| r["scenes"].as_object().unwrap().values().map(|s| s["newton_iterations"].as_u64().unwrap())).sum::<u64>();
+    assert_eq!(cold.len(), 5);
+    for (c, w) in cold.iter().zip(&warm) {
+        assert_eq!(c["status"], w["status"]);
+        for key in ["omega_J_m3", "theta_max_deg", "tau_max_Nm", "p_omega_kPa"] {
+            let (a, b) = (c[key].as_f64().unwrap(), w[key].as_f64().unwrap());
+            assert!((a - b).abs() <= 2e-3 * a.abs(), "design {}: {key} cold {a} warm {b}", c["index"]);
+        }
+    }
+    let warmed = warm.iter().skip(1).filter(|r| r["scenes"].as_object().unwrap().values().all(|s| s["warm_start_kPa"].as_f64().is_some())).count();
+    assert!(warmed >= 3, "{warmed} of 4 designs warm-started both scenes");
+    assert!(warm[0]["scenes"]["free"]["warm_start_kPa"].is_null());
+    assert!(3 * its(&warm) < 2 * its(&cold), "Newton iterations warm {} cold {}", its(&warm), its(&cold));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -144,6 +144,12 @@ pub struct ContinuationOptions {
     pub switch_stiffness: Option<f64>,
     /// Relative accuracy in λ of located events (fold, stability loss, thresholds).
     pub locate_tol: f64,
+    /// Relative accuracy in c of a located fold's state (its outputs vary with c at first
+    /// order): the next secant estimate within it, or the bracket narrower than it (where the
+    /// stiffness jumps at a stability loss next to the pressure maximum, the secant stalls
+    /// and the bracket is bisected).
+    #[serde(default = "default_locate_control_tol")]
+    pub locate_control_tol: f64,
     /// End the path at a fold of λ (else pass it under control-functional control).
     pub stop_at_fold: bool,
     /// End the path where a converged point loses stability with λ still rising.
@@ -157,6 +163,11 @@ pub struct ContinuationOptions {
     /// Predict by the cubic Hermite extrapolation through the last two points (values and
     /// tangents; error O(h⁴)) instead of the quadratic (value, tangent, previous value; O(h³)).
     pub cubic: bool,
+    /// A path started under functional control (`start_control`): its first step as a
+    /// fraction of |c| at the start (None: `initial` of λ_end − λ₀ converted by dc/dλ there),
+    /// e.g. from a nearby design's path (a warm start near its fold).
+    #[serde(default)]
+    pub initial_functional: Option<f64>,
     pub newton: NewtonOptions,
 }
 
@@ -174,6 +185,7 @@ impl Default for ContinuationOptions {
             max_steps: 500,
             switch_stiffness: Some(0.35),
             locate_tol: 1e-6,
+            locate_control_tol: default_locate_control_tol(),
             stop_at_fold: true,
             stop_at_instability: true,
             start_control: Control::Load,
@@ -183,6 +195,7 @@ impl Default for ContinuationOptions {
             // indefinite iterates; with the tangent-line predictor alone the mixed one was better
             mixed_tangent: false,
             cubic: true,
+            initial_functional: None,
             // ‖r‖ ≤ 1e-7 of the force scale: quadratic convergence overshoots it, so the outputs
             // at fixed load move by < 1e-9 relative against 1e-12 (measured; see README)
             // (and give up on a solve whose residual is above its start after 3 iterations: the
@@ -190,6 +203,10 @@ impl Default for ContinuationOptions {
             newton: NewtonOptions { rtol: 1e-7, stall_iterations: 3, stall_ratio: 0.1, ..NewtonOptions::default() },
         }
     }
+}
+
+fn default_locate_control_tol() -> f64 {
+    1e-4
 }
 
 /// Why a path point was recorded.
@@ -740,7 +757,10 @@ impl<'a, M: PathModel> Follower<'a, M> {
         // step length: λ units under load control, c units under functional control
         let mut h = o.initial * span.abs();
         if ctl == Control::Functional {
-            h *= cur.dc.map(|d| d.abs()).unwrap_or(1.0);
+            h = match (o.initial_functional, cur.c) {
+                (Some(f), Some(c)) if f > 0.0 && f.is_finite() => f * c.abs(),
+                _ => h * cur.dc.map(|d| d.abs()).unwrap_or(1.0),
+            };
         }
         let mut pending_its = 0usize;
         loop {
@@ -877,9 +897,13 @@ impl<'a, M: PathModel> Follower<'a, M> {
                     if ctl == Control::Functional {
                         self.emit_stations(&cur, &new, &st, &mut next_station, dir);
                         if (new.lam - lam_end) * dir >= 0.0 {
+                            // (near a fold λ is a poor parameter: else located on c)
                             let n = match self.solve_between(&cur, &new, Control::Load, lam_end) {
                                 Ok(n) => n,
-                                Err(_) => new,
+                                Err(_) => {
+                                    let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
+                                    self.locate_crossing(&cur, &new, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0).filter(|e| (e.lam - lam_end).abs() <= ftol).unwrap_or(new)
+                                }
                             };
                             self.push(&n, PointKind::End, its_point);
                             return (PathEnd::Completed, Some(n), ctl);
@@ -922,7 +946,7 @@ impl<'a, M: PathModel> Follower<'a, M> {
                         // λ_end lies before a fold met under functional control (the fold
                         // just beyond it): the path ends there, located on c
                         Event::Fold(n) if ctl == Control::Functional && (n.lam - lam_end) * dir >= 0.0 && (cur.lam - lam_end) * dir < 0.0 => {
-                            let ftol = 1e-10 * lam_end.abs().max(1e-300);
+                            let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
                             match self.locate_crossing(&cur, &n, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0) {
                                 Some(e) if (e.lam - lam_end).abs() <= ftol => (PathEnd::Completed, e),
                                 _ => (PathEnd::Fold, n),
@@ -1073,12 +1097,13 @@ impl<'a, M: PathModel> Follower<'a, M> {
             if self.trace {
                 eprintln!("[fold] λ {:.10} c {:.6} k {:.4e} stable {}; bracket c ∈ [{:.6}, {:.6}]; next c* {cs:.6}, λ error estimate {err:.3e}", last.lam, x1.0, x1.1, last.stable, lo.0, hi.0);
             }
-            // λ to `locate_tol`, and the state itself (c) to 1e-5 relative, so that the outputs at
+            // λ to `locate_tol`, and the state itself (c) to `locate_control_tol`, so that the outputs at
             // the fold (θ, τ, which vary along the fold at first order) are pinned too — unless
             // the stiffness is already at its noise level there (the tangent is singular at the
             // fold, so k = 1/(∇c·K⁻¹r_λ) carries no more digits)
             let k_ref = a.stiffness().unwrap_or(0.0).abs();
-            let c_ok = (cs - x1.0).abs() <= 1e-5 * x1.0.abs() || x1.1.abs() <= 1e-3 * k_ref;
+            let ctol = self.o.locate_control_tol * x1.0.abs();
+            let c_ok = (cs - x1.0).abs() <= ctol || (hi.0 - lo.0).abs() <= ctol || x1.1.abs() <= 1e-3 * k_ref;
             if err <= self.o.locate_tol * last.lam.abs().max(1e-300) && c_ok {
                 break;
             }

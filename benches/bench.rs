@@ -77,6 +77,9 @@ fn main() {
     if wanted("sweep_throughput_rom") {
         sweep_throughput_rom();
     }
+    if wanted("sweep_throughput_rom_warm") {
+        sweep_throughput_rom_warm();
+    }
     if wanted("rom_evaluation") {
         rom_evaluation();
     }
@@ -272,6 +275,66 @@ fn sweep_throughput_rom() {
         );
     }
     merge("sweep_throughput_rom", Value::Object(out));
+}
+
+/// The Table-I sweep's work on the committed reduced model (studies/rom/sweep-k80-points): two
+/// lines of 16 designs along α at the grid's 2° step (r = 5√3, l = 12 from α = 100°; r = 14.16,
+/// l = 19 from α = 240°), free + blocked to failure, cold and with `sweep.warm_start`, through
+/// `twistopt::sweep::run_sweep` on one thread (a line is sequential by construction).
+fn sweep_throughput_rom_warm() {
+    use twistopt::sweep::{problem_from_str, run_sweep, RunOptions, Shard, SweepConfig};
+    let rom = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/rom/sweep-k80-points");
+    let mut out = serde_json::Map::new();
+    let mut per_design = Vec::new();
+    for warm in [false, true] {
+        let mut cpu = 0.0;
+        let mut its = 0u64;
+        let mut n = 0usize;
+        let mut rows_all = Vec::new();
+        for (r, l, a0) in [(8.660254037844386, 12.0, 100.0), (14.16025403784439, 19.0, 240.0)] {
+            let alphas: Vec<String> = (0..16).map(|i| format!("{}", a0 + 2.0 * i as f64)).collect();
+            let text = format!(
+                "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\nrom = {}\nrom_fallback = inf\n[sweep]\nwarm_start = {warm}\nr_mm = [{r}]\nl_mm = [{l}]\nalpha_deg = [{}]\n",
+                toml_string(&rom.display().to_string()),
+                alphas.join(", ")
+            );
+            let (problem, section) = problem_from_str(&text, "bench", &[]).expect("problem");
+            let cfg = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).expect("config");
+            let dir = std::env::temp_dir().join(format!("twistopt-bench-warm-{}-{warm}-{r}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            run_sweep(&cfg, &dir, &RunOptions { threads: 1, progress: false, outputs: false }, |_| {}).expect("sweep");
+            let rows = twistopt::sweep::read_rows(&dir.join("results.jsonl")).expect("rows").rows;
+            for row in &rows {
+                cpu += row.wall_time_s;
+                its += row.scenes.values().map(|s| s.newton_iterations as u64).sum::<u64>();
+                n += 1;
+            }
+            rows_all.extend(rows);
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+        rows_all.sort_by_key(|r| (r.design.get("r_mm").map(|v| (v * 1e6) as i64), r.index));
+        per_design.push(rows_all);
+        let name = if warm { "warm" } else { "cold" };
+        println!("sweep_throughput_rom_warm {name}: {:.3} s and {:.1} Newton iterations per design ({n} designs, one thread)", cpu / n as f64, its as f64 / n as f64);
+        out.insert(name.into(), json!({"seconds_per_design": cpu / n as f64, "newton_iterations_per_design": its as f64 / n as f64, "designs": n}));
+    }
+    // the two runs' answers: largest relative difference of Ω, θmax, τmax
+    let mut worst: f64 = 0.0;
+    for (c, w) in per_design[0].iter().zip(&per_design[1]) {
+        for (a, b) in [(c.primary.omega_j_m3, w.primary.omega_j_m3), (c.primary.theta_max_deg, w.primary.theta_max_deg), (c.primary.tau_max_nm, w.primary.tau_max_nm)] {
+            if let (Some(a), Some(b)) = (a, b) {
+                worst = worst.max((a - b).abs() / a.abs().max(1e-12));
+            }
+        }
+    }
+    let (c, w) = (out["cold"]["seconds_per_design"].as_f64().unwrap_or(f64::NAN), out["warm"]["seconds_per_design"].as_f64().unwrap_or(f64::NAN));
+    println!("sweep_throughput_rom_warm: warm/cold time {:.2}, Table-I grid ≈ {:.1} h on 2 cores at the warm rate; answers within {worst:.1e}", w / c, 39_864.0 * w / 2.0 / 3600.0);
+    out.insert("description".into(), json!("two lines of 16 Table-I designs along α (2° steps) on studies/rom/sweep-k80-points (no fallback), free + blocked to failure, cold and warm-started (sweep.warm_start), one thread; release build. Times depend on the machine's load"));
+    out.insert("warm_over_cold_time".into(), json!(w / c));
+    out.insert("table1_grid_hours_on_2_cores_warm".into(), json!(39_864.0 * w / 2.0 / 3600.0));
+    out.insert("max_rel_difference_warm_vs_cold".into(), json!(worst));
+    out.insert("target_seconds_per_design".into(), json!(0.18));
+    merge("sweep_throughput_rom_warm", Value::Object(out));
 }
 
 /// One reduced evaluation of the committed quadrature-level model (studies/rom/sweep-k80-points)

@@ -4,7 +4,7 @@
 
 use crate::geometry::{ActuatorGeometry, Design, DesignSpace, RangePolicy};
 use crate::scene::{SceneKind, SceneModel, SceneOptions};
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 use rayon::prelude::*;
 use std::time::Instant;
 use twistopt_solver::rom::{Basis, EcswOptions, Frame, Rom, Snapshot, Truncation};
@@ -72,6 +72,9 @@ pub struct TrainReport {
     pub sample_points: usize,
     pub elements: usize,
     pub ecsw_residual: f64,
+    /// snapshots the ECSW fit left out (their projection inverts an element)
+    #[serde(default)]
+    pub ecsw_skipped_snapshots: usize,
     pub snapshot_time_s: f64,
     pub pod_time_s: f64,
     pub ecsw_time_s: f64,
@@ -211,7 +214,7 @@ pub fn fit_sample(opts: &SceneOptions, basis: &Basis, ramps: &[Ramp], ecsw: &Ecs
         let model = SceneModel::build(&geom, &full, first.kind)?.model;
         let elements = model.mesh.n_elements();
         let sample = if ecsw.points { twistopt_solver::rom::Sample::all_points(elements, model.form.rule().weights.len()) } else { twistopt_solver::rom::Sample::all(elements) };
-        return Ok(twistopt_solver::rom::EcswFit { sample, residual: 0.0, rows: 0 });
+        return Ok(twistopt_solver::rom::EcswFit { sample, residual: 0.0, rows: 0, skipped: 0 });
     }
     let mut acc = twistopt_solver::rom::EcswAccumulator::new(ecsw.tangent_directions);
     acc.points = ecsw.points;
@@ -246,6 +249,9 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
     }
     let t2 = Instant::now();
     let fit = fit_sample(opts, &basis, ramps, &t.ecsw)?;
+    if fit.sample.weights.is_empty() {
+        bail!("ECSW chose no sample ({} training snapshot(s) left out because their projection onto the basis inverts an element): the basis cannot represent the training states", fit.skipped);
+    }
     let ecsw_time_s = t2.elapsed().as_secs_f64();
     let n_elements = {
         let geom = ActuatorGeometry::new(&ramps[0].design, RangePolicy::TableI)?;
@@ -254,6 +260,9 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
         SceneModel::build(&geom, &full, ramps[0].kind)?.model.mesh.n_elements()
     };
     log(&format!("  ECSW: {}, relative residual {:.2e} (τ = {})", fit.sample.describe(n_elements), fit.residual, t.ecsw.tau));
+    if fit.skipped > 0 {
+        log(&format!("  ECSW: {} snapshot(s) left out: their projection onto the basis inverts an element", fit.skipped));
+    }
     let mut designs: Vec<Design> = Vec::new();
     for r in ramps {
         if !designs.iter().any(|d| d.values == r.design.values) {
@@ -270,6 +279,7 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
         sample_points: fit.sample.points.len(),
         elements: n_elements,
         ecsw_residual: fit.residual,
+        ecsw_skipped_snapshots: fit.skipped,
         snapshot_time_s: 0.0,
         pod_time_s,
         ecsw_time_s,

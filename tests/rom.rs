@@ -709,3 +709,70 @@ fn reduced_sensitivities_equal_finite_differences_of_reduced_equilibria() {
         }
     }
 }
+
+/// The reduced pressure space holds the element-wise constant field exactly, whatever the
+/// snapshots: the reduced dilatation (det F's projection on the space) is then 1 at the
+/// reference state. Snapshots whose constant parts alternate in sign over the elements, as the
+/// pure-twist scenes' pressures do, gave a space without it: every state read as inverted.
+#[test]
+fn pressure_basis_holds_the_element_constant_field() {
+    use twistopt_solver::rom::PressureBasis;
+    let (np, ne) = (4, 6);
+    let snaps: Vec<Vec<f64>> = (0..5)
+        .map(|s| (0..ne * np).map(|i| ((i / np) as f64 - 2.5) * ((1 + s) as f64 * (1 + i) as f64).sin()).collect())
+        .collect();
+    let pb = PressureBasis::pod(&snaps, np, Truncation::Modes(3)).unwrap();
+    assert_eq!(pb.kp, 3);
+    let col = |j: usize| -> Vec<f64> { (0..ne * np).map(|i| pb.psi[i * pb.kp + j]).collect() };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    for a in 0..pb.kp {
+        for b in 0..pb.kp {
+            let d = dot(&col(a), &col(b));
+            assert!((d - if a == b { 1.0 } else { 0.0 }).abs() < 1e-12, "modes {a}, {b}: {d}");
+        }
+    }
+    let ones: Vec<f64> = (0..ne * np).map(|i| if i % np == 0 { 1.0 } else { 0.0 }).collect();
+    let mut back = vec![0.0; ne * np];
+    for j in 0..pb.kp {
+        let c = col(j);
+        let a = dot(&c, &ones);
+        back.iter_mut().zip(&c).for_each(|(x, y)| *x += a * y);
+    }
+    let err = back.iter().zip(&ones).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    assert!(err < 1e-12, "the constant field's projection is off by {err:e}");
+}
+
+/// A reduced model of the pure-twist pair trains (a non-empty sample) and reproduces a training
+/// design's full-order pure-twist Ω.
+#[test]
+fn pure_twist_rom_trains_and_reproduces_a_training_design() {
+    use std::process::Command;
+    let bin = || Command::new(env!("CARGO_BIN_EXE_twistopt"));
+    let dir = std::env::temp_dir().join(format!("twistopt-rom-pure-twist-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let romdir = dir.join("rom");
+    let common = ["--set", "fidelity.preset=\"coarse\"", "--set", "load.p_max_kPa=30"];
+    let out = bin().args(["rom", "train", "problems/pure-twist.toml"]).args(common).args(["--designs", "3", "--modes", "24", "--pressure-modes", "5", "--points", "--out"]).arg(&romdir).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(romdir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["options"]["scenes"], serde_json::json!(["pure-twist", "pure-twist-blocked"]));
+    assert!(m["report"]["sample_points"].as_u64().unwrap() > 0, "{}", m["report"]);
+    assert_eq!(m["report"]["ecsw_skipped_snapshots"], 0, "{}", m["report"]);
+    let rom_set = format!("fidelity.rom={}", toml::Value::String(romdir.display().to_string()));
+    let ev = |rom: bool, out_dir: &str| {
+        let mut c = bin();
+        c.args(["evaluate", "problems/pure-twist.toml"]).args(common);
+        if rom {
+            c.args(["--set", &rom_set]);
+        }
+        c.args(["--set", "design.r_mm=8.660254037844386", "--set", "design.l_mm=20", "--set", "design.alpha_deg=360", "--out"]).arg(dir.join(out_dir));
+        let out = c.output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join(out_dir).join("result.json")).unwrap()).unwrap();
+        assert_eq!(r["fidelity"]["model"], if rom { "reduced" } else { "full" });
+        r["omega_pure_twist_J_m3"].as_f64().unwrap()
+    };
+    let (om, of) = (ev(true, "rom-ev"), ev(false, "full-ev"));
+    assert!(om.is_finite() && of > 0.0 && (om - of).abs() <= 0.05 * of, "pure-twist Ω reduced {om} vs full {of}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

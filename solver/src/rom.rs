@@ -145,9 +145,46 @@ pub struct PressureBasis {
 impl PressureBasis {
     /// POD of pressure snapshots ([`crate::element::pressure_coefficients`] of every element,
     /// element-major), with `np` coefficients per element.
+    ///
+    /// The first mode is the element-wise constant field (coefficient 1 on each element's
+    /// constant pressure function, normalised), the others the POD of the snapshots with that
+    /// field removed (`trunc` counts both): the reduced dilatation, the L2 projection of det F on
+    /// the space, then holds det F = 1 exactly. Without it, a space whose modes carry no mean (the
+    /// pure-twist scenes' pressure varies in sign over the wall) projected det F ≈ 1 to a field
+    /// that is negative in places: every state of such a model read as inverted.
     pub fn pod(snapshots: &[Vec<f64>], np: usize, trunc: Truncation) -> Result<PressureBasis, RomError> {
-        let b = Basis::pod(snapshots, trunc)?;
-        Ok(PressureBasis { np, kp: b.k, psi: b.v, singular_values: b.singular_values })
+        let Some(first) = snapshots.first() else { return Err(RomError::NoSnapshots) };
+        let len = first.len();
+        let np = np.max(1);
+        let mut c = vec![0.0; len];
+        for e in 0..len / np {
+            c[e * np] = 1.0;
+        }
+        let cn = (c.iter().map(|x| x * x).sum::<f64>()).sqrt().max(f64::MIN_POSITIVE);
+        c.iter_mut().for_each(|x| *x /= cn);
+        let mut along = 0.0;
+        let deflated: Vec<Vec<f64>> = snapshots
+            .iter()
+            .map(|s| {
+                let a: f64 = s.iter().zip(&c).map(|(x, y)| x * y).sum();
+                along += a * a;
+                s.iter().zip(&c).map(|(x, y)| x - a * y).collect()
+            })
+            .collect();
+        let rest = match trunc {
+            Truncation::Modes(k) => Truncation::Modes(k.saturating_sub(1)),
+            Truncation::Tail { tol, max } => Truncation::Tail { tol, max: max.saturating_sub(1) },
+        };
+        let b = Basis::pod(&deflated, rest)?;
+        let kp = b.k + 1;
+        let mut psi = vec![0.0; len * kp];
+        for i in 0..len {
+            psi[i * kp] = c[i];
+            psi[i * kp + 1..(i + 1) * kp].copy_from_slice(&b.v[i * b.k..(i + 1) * b.k]);
+        }
+        let mut singular_values = vec![along.sqrt()];
+        singular_values.extend(b.singular_values);
+        Ok(PressureBasis { np, kp, psi, singular_values })
     }
     /// Ψ_e (np × kp, row-major): element e's block.
     #[inline]
@@ -610,6 +647,9 @@ pub struct EcswFit {
     /// the relative residual ‖G ξ − b‖ / ‖b‖ reached
     pub residual: f64,
     pub rows: usize,
+    /// snapshots left out because their projection onto the basis inverts an element (the
+    /// reduced space cannot hold that state; no reduced force is defined there)
+    pub skipped: usize,
 }
 
 /// Element-level ECSW: for every snapshot, each element's reduced force (J_eᵀ f_e on the modes,
@@ -639,6 +679,7 @@ pub struct EcswAccumulator {
     c: Vec<f64>,
     bb: f64,
     rows: usize,
+    skipped: usize,
 }
 
 impl EcswAccumulator {
@@ -662,7 +703,14 @@ impl EcswAccumulator {
         for chunk in snapshots.chunks(16) {
             let blocks: Vec<Result<(Mat<f64>, Vec<f64>), RomError>> = chunk.par_iter().map(|s| snapshot_rows(basis, s, nt, points)).collect();
             for blk in blocks {
-                let (g, bs) = blk?;
+                let (g, bs) = match blk {
+                    Ok(b) => b,
+                    Err(RomError::Element(ElementError::Inverted(_))) => {
+                        self.skipped += 1;
+                        continue;
+                    }
+                    Err(e) => return Err(e),
+                };
                 let a = self.a.get_or_insert_with(|| Mat::<f64>::zeros(ncand, ncand));
                 if a.nrows() != g.ncols() {
                     return Err(RomError::SampleElement(g.ncols(), a.nrows()));
@@ -686,7 +734,7 @@ impl EcswAccumulator {
     /// The weights by the τ-stopped NNLS.
     pub fn fit(&self, opts: &EcswOptions) -> EcswFit {
         let Some(a) = &self.a else {
-            return EcswFit { sample: Sample { elements: Vec::new(), weights: Vec::new(), points: Vec::new() }, residual: 1.0, rows: 0 };
+            return EcswFit { sample: Sample { elements: Vec::new(), weights: Vec::new(), points: Vec::new() }, residual: 1.0, rows: 0, skipped: self.skipped };
         };
         let (xi, res) = nnls_gram(a, &self.c, self.bb, opts.tau, opts.max_elements);
         let mut sample = Sample { elements: Vec::new(), weights: Vec::new(), points: Vec::new() };
@@ -701,7 +749,7 @@ impl EcswAccumulator {
                 sample.weights.push(w);
             }
         }
-        EcswFit { sample, residual: res, rows: self.rows }
+        EcswFit { sample, residual: res, rows: self.rows, skipped: self.skipped }
     }
 }
 

@@ -207,6 +207,12 @@ fn killed_resumed_sharded_and_verified() {
     assert_eq!(v["at_least_100x_fewer_evaluations"], false);
     assert_eq!(v["optimiser"]["feasible"], true);
     assert_eq!(v["sweep"]["best"]["omega_J_m3"].as_f64(), Some(best_omega));
+    // the optimiser's design re-evaluated as a sweep row (the letter's rule): 0.1 mm from the
+    // sweep's best design, so within a few % of its Ω
+    let rule = &v["optimiser_design_by_the_letters_rule"];
+    assert_eq!(rule["status"], "ok", "{rule}");
+    let rr = rule["omega_relative_difference"].as_f64().unwrap();
+    assert!(rr.abs() < 0.05 && (rule["omega_J_m3"].as_f64().unwrap() / best_omega - 1.0 - rr).abs() < 1e-12, "{rule}");
     let txt = std::fs::read_to_string(opt.join("verify.txt")).unwrap();
     assert!(txt.contains("-0.50 %") && txt.contains("within 1 %") && txt.trim().lines().count() == 1, "{txt}");
     // the same in the explicit combined mode; the pure-twist mode did not run in this sweep

@@ -146,6 +146,25 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
     let nearest = rows.iter().filter(|r| r.status == "ok").map(|r| (design_distance(&r.design, &best.design).0, r)).min_by(|a, b| a.0.total_cmp(&b.0)).map(
         |(d, r)| json!({"id": r.id, "design": r.design, "scaled_distance": d, "omega_J_m3": mode_of(r, mode).and_then(|m| m.omega_j_m3), "feasible": mode_of(r, mode).is_some_and(|m| m.feasible)}),
     );
+    // the optimiser's design as a sweep row: ramped to failure at the sweep's fidelity, Ω by the
+    // letter's rule (at the lower failure pressure, or where the max radius reaches the limit).
+    // The optimiser's own Ω is taken at its pressure variable, which the stability constraint
+    // keeps STABILITY_MARGIN below the lowest pressure maximum; the grid's is at the failure
+    // pressure itself. This row compares the designs by one rule.
+    let rule = letter_rule_row(problem, &best.design, manifest.grid.range).map(|row| {
+        let m = mode_of(&row, mode).cloned();
+        let om = m.as_ref().and_then(|m| m.omega_j_m3);
+        let feasible = row.status == "ok" && m.as_ref().is_some_and(|m| m.feasible);
+        let rel = om.map(|o| (o - s_omega) / s_omega.abs());
+        json!({
+            "status": row.status, "cause": row.cause, "omega_J_m3": om, "p_kPa": m.as_ref().and_then(|m| m.p_omega_kpa),
+            "theta_deg": m.as_ref().and_then(|m| m.theta_omega_deg), "tau_Nm": m.as_ref().and_then(|m| m.tau_omega_nm),
+            "max_radius_mm": m.as_ref().and_then(|m| m.max_radius_mm), "feasible": feasible,
+            "omega_relative_difference": rel, "within_1_percent": feasible && rel.is_some_and(|r| r >= -0.01),
+            "wall_time_s": row.wall_time_s,
+        })
+    });
+    let rule = rule.unwrap_or_else(|e| json!({"status": "error", "cause": format!("{e:#}")}));
     let v = json!({
         "objective": format!("omega_J_m3 ({mode_name} mode, the letter's rule)"),
         "mode": mode_name,
@@ -170,6 +189,7 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
         },
         "omega_relative_difference": rel,
         "within_1_percent": within,
+        "optimiser_design_by_the_letters_rule": rule,
         "scaled_distance": dist,
         "per_parameter": per,
         "evaluation_ratio": ratio,
@@ -207,5 +227,28 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
         },
         if warnings.is_empty() { String::new() } else { format!(" Warnings: {}.", warnings.join("; ")) },
     );
+    let summary = match (v["optimiser_design_by_the_letters_rule"]["omega_J_m3"].as_f64(), v["optimiser_design_by_the_letters_rule"]["omega_relative_difference"].as_f64()) {
+        (Some(o), Some(r)) => format!(
+            "{summary} Evaluated as the sweep evaluates a design (ramped to failure, Ω by the letter's rule at p = {} kPa; the optimiser keeps p {:.0} % below the pressure maximum), the optimiser's design reaches Ω = {o:.2} J/m³, {:+.2} % relative to the sweep's best ({}).",
+            v["optimiser_design_by_the_letters_rule"]["p_kPa"].as_f64().map(|p| format!("{p:.2}")).unwrap_or_else(|| "?".into()),
+            100.0 * crate::optimise::STABILITY_MARGIN,
+            100.0 * r,
+            if v["optimiser_design_by_the_letters_rule"]["within_1_percent"].as_bool() == Some(true) { "within 1 %" } else { "not within 1 %" },
+        ),
+        _ => format!("{summary} The optimiser's design could not be evaluated by the letter's rule: {}.", v["optimiser_design_by_the_letters_rule"]["cause"].as_str().unwrap_or("?")),
+    };
     Ok((v, summary))
+}
+
+/// `design` evaluated as a sweep row of `problem` (its scenes, fidelity and ramp bound).
+fn letter_rule_row(problem: &Problem, design: &BTreeMap<String, f64>, range: crate::geometry::RangePolicy) -> Result<Row> {
+    let v = problem.validate()?;
+    let mut opts = problem.scene_options(&v);
+    opts.keep_fields = false;
+    let p_max = match v.load {
+        crate::problem::LoadPlan::Ramp(p) => p,
+        crate::problem::LoadPlan::Targets(_) => bail!("load: give load.p_max_kPa (the sweep's ramp bound)"),
+    };
+    let d = crate::geometry::Design { values: design.clone(), variant: problem.design.variant };
+    Ok(super::evaluate_design_guarded(0, &d, range, &v, &opts, p_max))
 }

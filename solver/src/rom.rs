@@ -2066,7 +2066,11 @@ impl<'a> RomPath<'a> {
         // (reused per thread: fresh multi-megabyte buffers cost page faults at every evaluation;
         // every entry used is overwritten below)
         let (mut ag, mut g_dyn) = POINT_BUFFERS.with(|b| std::mem::take(&mut *b.borrow_mut()));
-        ag.resize(if want_k { 9 * n * m } else { 0 }, 0.0);
+        // (grown only: shrinking it at a residual-only evaluation made the next tangent's
+        // resize zero-fill its megabytes again, 5 % of a reduced sweep design)
+        if want_k && ag.len() < 9 * n * m {
+            ag.resize(9 * n * m, 0.0);
+        }
         // G of the state-dependent points: the static nodes' part, then the others' sparse rows
         g_dyn.clear();
         g_dyn.extend_from_slice(&ps.g_dyn_static);
@@ -2182,7 +2186,7 @@ impl<'a> RomPath<'a> {
             let nc = 9 * ps.n_const;
             lower_product(kl, rm(&ps.g_const, nc, m).transpose(), rm(&ag[..nc * m], nc, m), 1.0);
             if n > ps.n_const {
-                lower_product(kl, rm(&g_dyn, 9 * n - nc, m).transpose(), rm(&ag[nc * m..], 9 * n - nc, m), 1.0);
+                lower_product(kl, rm(&g_dyn, 9 * n - nc, m).transpose(), rm(&ag[nc * m..9 * n * m], 9 * n - nc, m), 1.0);
             }
             // B = Σ (w Ψ_eᵀ φ) ⊗ ∂J/∂z over the points
             let mut b_red = Mat::<f64>::zeros(kp, m);

@@ -335,6 +335,10 @@ pub struct Manifest {
     /// how it was calibrated (the validation, the rule, the share of designs it sends back)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fallback_calibration: Option<serde_json::Value>,
+    /// the greedy enrichment (`rom train --enrich`): options, rounds (the candidates' indicators
+    /// and the designs each added), the final model's indicators
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub enrichment: Option<serde_json::Value>,
 }
 
 fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {
@@ -821,5 +825,90 @@ pub fn validation_summary(rows: Vec<serde_json::Value>, count: usize, seed: u64)
         "statuses_agree": statuses_agree,
         "cpu_s_per_design_full": cpu("cpu_s_full"), "cpu_s_per_design_rom": cpu("cpu_s_rom"),
         "rows": rows,
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Greedy enrichment (`rom train --enrich`)
+
+/// How `rom train --enrich` grows the training set: each round ramps the reduced model on every
+/// candidate design (seeded random designs of the box, disjoint in seed from the validations),
+/// ranks them by the error indicator, adds the `batch` worst to the training designs, and
+/// retrains, until the worst indicator is at most `target` or `rounds` rounds have run.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EnrichOptions {
+    pub rounds: usize,
+    pub candidates: usize,
+    pub batch: usize,
+    pub target: f64,
+    pub seed: u64,
+}
+
+/// The reduced model's error indicator on one design: the larger of its twist and torque
+/// scenes' indicators ([`scene_pair`]), each ramped to failure or `p_max_kpa` on the reduced
+/// model alone (no fallback). A scene that ends in an error, or without an indicator, counts as
+/// +∞ (the model cannot answer there: the first design to train on).
+pub fn design_indicator(opts: &SceneOptions, rom: &std::sync::Arc<Rom>, d: &Design, p_max_kpa: f64) -> f64 {
+    let mut ro = opts.clone();
+    ro.rom = Some(rom.clone());
+    ro.rom_fallback = None;
+    let Ok(g) = ActuatorGeometry::new(d, RangePolicy::TableI) else { return f64::INFINITY };
+    let (twist, torque) = scene_pair(&opts.rom_scenes);
+    let mut worst = 0.0f64;
+    for kind in [twist, torque] {
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| crate::scene::run_pressure(&g, &ro, kind, &[p_max_kpa]))) {
+            Ok(Ok(r)) => match r.rom_indicator.filter(|v| v.is_finite()) {
+                Some(v) => worst = worst.max(v),
+                None => return f64::INFINITY,
+            },
+            _ => return f64::INFINITY,
+        }
+    }
+    worst
+}
+
+/// One enrichment round's choice: the indicators of `candidates` (those not `excluded`, in
+/// parallel), and the indices of the `batch` worst whose indicator exceeds `target` (worst
+/// first; empty when every candidate is at or below the target). `progress` is called once per
+/// candidate.
+pub fn enrichment_pick(
+    opts: &SceneOptions,
+    rom: &std::sync::Arc<Rom>,
+    candidates: &[Design],
+    excluded: &[usize],
+    p_max_kpa: f64,
+    batch: usize,
+    target: f64,
+    progress: &(impl Fn(usize, f64) + Sync),
+) -> (Vec<(usize, f64)>, Vec<usize>) {
+    let ind: Vec<(usize, f64)> = (0..candidates.len())
+        .into_par_iter()
+        .filter(|i| !excluded.contains(i))
+        .map(|i| {
+            let v = design_indicator(opts, rom, &candidates[i], p_max_kpa);
+            progress(i, v);
+            (i, v)
+        })
+        .collect();
+    let mut ranked = ind.clone();
+    // worst first; ties by index (deterministic)
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let picks = ranked.iter().filter(|(_, v)| *v > target).take(batch).map(|(i, _)| *i).collect();
+    (ind, picks)
+}
+
+/// The record of one enrichment round: the candidates' indicator distribution before it, and
+/// the designs it added.
+pub fn enrichment_round_record(round: usize, ind: &[(usize, f64)], picks: &[usize], candidates: &[Design]) -> serde_json::Value {
+    let mut v: Vec<f64> = ind.iter().map(|x| x.1).collect();
+    v.sort_by(f64::total_cmp);
+    let q = |f: f64| v.get(((v.len().max(1) - 1) as f64 * f).round() as usize).copied().unwrap_or(f64::NAN);
+    let of = |i: usize| ind.iter().find(|x| x.0 == i).map_or(f64::NAN, |x| x.1);
+    let finite = |x: f64| if x.is_finite() { serde_json::json!(x) } else { serde_json::json!(null) };
+    serde_json::json!({
+        "round": round,
+        "candidates": ind.len(),
+        "indicator": { "max": finite(q(1.0)), "p90": finite(q(0.9)), "median": finite(q(0.5)), "unanswered": v.iter().filter(|x| !x.is_finite()).count() },
+        "added": picks.iter().map(|&i| serde_json::json!({ "candidate": i, "design": candidates[i], "indicator": finite(of(i)) })).collect::<Vec<_>>(),
     })
 }

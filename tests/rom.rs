@@ -776,3 +776,50 @@ fn pure_twist_rom_trains_and_reproduces_a_training_design() {
     assert!(om.is_finite() && of > 0.0 && (om - of).abs() <= 0.05 * of, "pure-twist Ω reduced {om} vs full {of}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `rom train --enrich`: a round ranks the candidates by the reduced model's indicator, adds
+/// the worst to the training designs and retrains; the record says so; a re-run resumes from
+/// DIR/enrichment.json and the cached ramps and writes the same model.
+#[test]
+fn greedy_enrichment_adds_the_worst_candidate_and_resumes() {
+    use std::process::Command;
+    let bin = || Command::new(env!("CARGO_BIN_EXE_twistopt"));
+    let dir = std::env::temp_dir().join(format!("twistopt-rom-enrich-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let romdir = dir.join("rom");
+    let train = || {
+        let out = bin()
+            .args(["rom", "train", "problems/energy-density.toml", "--set", "fidelity.preset=\"coarse\"", "--designs", "8", "--modes", "16", "--pressure-modes", "4", "--p-max", "60"])
+            .args(["--enrich", "1", "--enrich-candidates", "3", "--enrich-batch", "1", "--enrich-target", "0", "--enrich-seed", "5", "--out"])
+            .arg(&romdir)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(romdir.join("manifest.json")).unwrap()).unwrap();
+        (String::from_utf8_lossy(&out.stdout).to_string(), m, std::fs::read(romdir.join("basis.bin")).unwrap())
+    };
+    let (_, m, basis) = train();
+    let e = &m["enrichment"];
+    let rounds = e["rounds"].as_array().unwrap();
+    assert_eq!(rounds.len(), 1, "{e}");
+    assert_eq!(rounds[0]["candidates"], 3);
+    let added = rounds[0]["added"].as_array().unwrap();
+    assert_eq!(added.len(), 1, "{e}");
+    // the worst candidate, and one of the seeded candidates
+    assert_eq!(added[0]["indicator"], rounds[0]["indicator"]["max"], "{e}");
+    let i = added[0]["candidate"].as_u64().unwrap() as usize;
+    let cands = twistopt::rom::random_designs(3, 5);
+    assert_eq!(added[0]["design"], serde_json::to_value(&cands[i]).unwrap());
+    let trained = m["report"]["training_designs"].as_array().unwrap();
+    assert_eq!(trained.len(), 9);
+    assert!(trained.contains(&serde_json::to_value(&cands[i]).unwrap()));
+    // the final model's indicators over the two remaining candidates
+    assert_eq!(e["final"]["candidates"], 2, "{e}");
+    assert!(e["final"]["indicator"]["max"].as_f64().unwrap() > 0.0);
+    // a re-run resumes: the same model, no new round
+    let (stdout, m2, basis2) = train();
+    assert!(stdout.contains("resuming after 1 round"), "{stdout}");
+    assert_eq!(m2["enrichment"]["rounds"], m["enrichment"]["rounds"]);
+    assert!(basis == basis2, "the resumed enrichment wrote another basis");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -2,7 +2,7 @@
 //! element, material and scene options (see [`crate::rom`]).
 
 use crate::problem::Problem;
-use crate::rom::{Manifest, TrainOptions, FORMAT_VERSION};
+use crate::rom::{EnrichOptions, Manifest, TrainOptions, FORMAT_VERSION};
 use crate::scene::SceneKind;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -147,6 +147,24 @@ pub struct TrainArgs {
     /// pure-twist mode, or all four. The model refuses any other scene.
     #[arg(long, value_name = "SCENE,SCENE")]
     pub scenes: Option<String>,
+    /// Greedy enrichment: after training, up to this many rounds, each ramping the reduced
+    /// model on the candidate designs, adding the worst by the error indicator (the full model's
+    /// residual at the reduced states) to the training designs and retraining. Resumable
+    /// (DIR/enrichment.json and the cached ramps).
+    #[arg(long, default_value_t = 0)]
+    pub enrich: usize,
+    /// Enrichment candidates: this many seeded random designs of the box.
+    #[arg(long, default_value_t = 100)]
+    pub enrich_candidates: usize,
+    /// Designs added per enrichment round (the worst ones).
+    #[arg(long, default_value_t = 2)]
+    pub enrich_batch: usize,
+    /// Stop enriching once every candidate's indicator is at most this.
+    #[arg(long, default_value_t = 0.08)]
+    pub enrich_target: f64,
+    /// Seed of the enrichment candidates (the validations' default seeds are 7 and 42).
+    #[arg(long, default_value_t = 1001)]
+    pub enrich_seed: u64,
 }
 
 pub fn run(args: &RomArgs) -> Result<()> {
@@ -215,6 +233,9 @@ fn train(a: &TrainArgs) -> Result<()> {
     if !(a.p_max > 0.0 && a.p_max <= 1000.0) {
         anyhow::bail!("--p-max {} must be in (0, 1000] kPa", a.p_max);
     }
+    if a.enrich > 0 && (a.enrich_candidates == 0 || a.enrich_batch == 0 || !(a.enrich_target >= 0.0 && a.enrich_target.is_finite())) {
+        anyhow::bail!("--enrich needs --enrich-candidates > 0, --enrich-batch > 0 and a finite --enrich-target ≥ 0");
+    }
     let t = TrainOptions {
         designs: a.designs,
         p_max_kpa: a.p_max,
@@ -246,7 +267,13 @@ fn train(a: &TrainArgs) -> Result<()> {
     })?;
     pb.finish_and_clear();
     let log = |s: &str| println!("{s}");
-    let (rom, report) = crate::rom::from_ramps(&opts, &t, &ramps, &log)?;
+    let (mut rom, mut report) = crate::rom::from_ramps(&opts, &t, &ramps, &log)?;
+    let mut enrichment = None;
+    if a.enrich > 0 {
+        let eo = EnrichOptions { rounds: a.enrich, candidates: a.enrich_candidates, batch: a.enrich_batch, target: a.enrich_target, seed: a.enrich_seed };
+        let (r, rep, record) = enrich(&opts, &t, &eo, &designs, rom, report, &a.out, a.p_max)?;
+        (rom, report, enrichment) = (r, rep, Some(record));
+    }
     let space = crate::geometry::DesignSpace::actuator();
     let mut manifest = Manifest {
         format_version: FORMAT_VERSION,
@@ -270,6 +297,7 @@ fn train(a: &TrainArgs) -> Result<()> {
         validation: None,
         fallback_indicator: None,
         fallback_calibration: None,
+        enrichment,
     };
     crate::rom::save(&a.out, &rom, &manifest)?;
     println!(
@@ -298,6 +326,99 @@ fn train(a: &TrainArgs) -> Result<()> {
         crate::rom::save(&a.out, &rom, &manifest)?;
     }
     Ok(())
+}
+
+/// Greedy enrichment of a trained model (see [`TrainArgs::enrich`]): returns the final model,
+/// its report and the enrichment record (options, rounds, the final model's indicators). The
+/// rounds done are kept in DIR/enrichment.json after each round; a re-run with the same options
+/// and initial designs replays them from the cached ramps and goes on.
+#[allow(clippy::too_many_arguments)]
+fn enrich(
+    opts: &crate::scene::SceneOptions,
+    t: &TrainOptions,
+    eo: &EnrichOptions,
+    designs: &[crate::geometry::Design],
+    mut rom: twistopt_solver::rom::Rom,
+    mut report: crate::rom::TrainReport,
+    dir: &std::path::Path,
+    p_max: f64,
+) -> Result<(twistopt_solver::rom::Rom, crate::rom::TrainReport, serde_json::Value)> {
+    let state_path = dir.join("enrichment.json");
+    let candidates = crate::rom::random_designs(eo.candidates, eo.seed);
+    let mut rounds: Vec<serde_json::Value> = Vec::new();
+    if let Ok(text) = std::fs::read_to_string(&state_path) {
+        match serde_json::from_str::<serde_json::Value>(&text) {
+            Ok(v) if v["options"] == serde_json::json!(eo) && v["initial_designs"] == serde_json::json!(designs) && v["p_max_kPa"] == serde_json::json!(p_max) => {
+                rounds = v["rounds"].as_array().cloned().unwrap_or_default();
+            }
+            _ => println!("enrichment: {} is of other options or designs: starting afresh", state_path.display()),
+        }
+    }
+    let added_of = |rounds: &[serde_json::Value]| -> Vec<usize> {
+        rounds.iter().flat_map(|r| r["added"].as_array().cloned().unwrap_or_default()).filter_map(|a| a["candidate"].as_u64().map(|i| i as usize)).collect()
+    };
+    let log = |s: &str| println!("{s}");
+    let train_on = |added: &[usize]| -> Result<(twistopt_solver::rom::Rom, crate::rom::TrainReport)> {
+        let mut all = designs.to_vec();
+        all.extend(added.iter().map(|&i| candidates[i].clone()));
+        let ramps = crate::rom::training_ramps_cached(opts, t, &all, dir, &|s: &str| eprintln!("  {s}"))?;
+        crate::rom::from_ramps(opts, t, &ramps, &log)
+    };
+    let save = |rounds: &[serde_json::Value], fin: Option<&serde_json::Value>| -> Result<serde_json::Value> {
+        let v = serde_json::json!({ "options": eo, "p_max_kPa": p_max, "initial_designs": designs, "rounds": rounds, "final": fin });
+        crate::sweep::write_atomic(&state_path, &serde_json::to_string_pretty(&v)?)?;
+        Ok(v)
+    };
+    if !rounds.is_empty() {
+        println!("enrichment: resuming after {} round(s) done", rounds.len());
+        (rom, report) = train_on(&added_of(&rounds))?;
+    }
+    let pass = |rom: &twistopt_solver::rom::Rom, excluded: &[usize], round: usize, batch: usize| {
+        let rom = std::sync::Arc::new(rom.clone());
+        let n = candidates.len() - excluded.len();
+        let pb = indicatif::ProgressBar::with_draw_target(Some(n as u64), indicatif::ProgressDrawTarget::stderr());
+        if let Ok(style) = indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} candidates, ETA {eta_precise} {msg}") {
+            pb.set_style(style.progress_chars("=> "));
+        }
+        pb.set_message(format!("enrichment round {round}"));
+        let (ind, picks) = crate::rom::enrichment_pick(opts, &rom, &candidates, excluded, p_max, batch, eo.target, &|_, _| pb.inc(1));
+        pb.finish_and_clear();
+        (ind, picks)
+    };
+    let converged = |rounds: &[serde_json::Value]| rounds.last().is_some_and(|r| r["added"].as_array().is_some_and(|a| a.is_empty()));
+    while rounds.len() < eo.rounds && !converged(&rounds) {
+        let added = added_of(&rounds);
+        let (ind, picks) = pass(&rom, &added, rounds.len(), eo.batch);
+        let rec = crate::rom::enrichment_round_record(rounds.len(), &ind, &picks, &candidates);
+        println!(
+            "enrichment round {}: indicator over {} candidates max {} p90 {} median {}; adding {}",
+            rounds.len(),
+            ind.len(),
+            rec["indicator"]["max"],
+            rec["indicator"]["p90"],
+            rec["indicator"]["median"],
+            if picks.is_empty() { format!("none (every indicator ≤ {})", eo.target) } else { picks.iter().map(|&i| format!("candidate {i} ({})", crate::rom::label(&candidates[i]))).collect::<Vec<_>>().join(", ") }
+        );
+        rounds.push(rec);
+        save(&rounds, None)?;
+        if !picks.is_empty() {
+            let mut all = added;
+            all.extend(&picks);
+            (rom, report) = train_on(&all)?;
+        }
+    }
+    // the final model's indicators (the last round's when it added nothing)
+    let fin = if converged(&rounds) {
+        rounds.last().cloned().unwrap_or_default()
+    } else {
+        let added = added_of(&rounds);
+        let (ind, _) = pass(&rom, &added, rounds.len(), 0);
+        let rec = crate::rom::enrichment_round_record(rounds.len(), &ind, &[], &candidates);
+        println!("enrichment: the final model's indicator over {} candidates max {} p90 {} median {}", ind.len(), rec["indicator"]["max"], rec["indicator"]["p90"], rec["indicator"]["median"]);
+        rec
+    };
+    let record = save(&rounds, Some(&fin))?;
+    Ok((rom, report, record))
 }
 
 fn validate(a: &ValidateArgs) -> Result<()> {

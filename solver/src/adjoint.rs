@@ -182,23 +182,15 @@ pub fn evaluate<D: Scalar>(model: &Model, inp: &Inputs<D>, loads: &Loads) -> Res
             }
         }
     }
-    // cavity: volume and −p ∂V/∂x
+    // cavity: volume and −p ∂V/∂x (the full model's volume loop)
     let mut volume = D::zero();
     let mut gvol_full = Vec::new();
     if let Some(cav) = &model.cavity {
         gvol_full = vec![D::zero(); 3 * nn_total];
         let xcur = |n: usize| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]];
-        let items = cav.face_nodes.iter().map(|v| (v.as_slice(), true)).chain(cav.edges.iter().map(|e| (e.0.as_slice(), false)));
-        for (nodes, is_face) in items {
-            let xs: Vec<[D; 3]> = nodes.iter().map(|&n| xcur(n)).collect();
-            let mut g = vec![D::zero(); 3 * xs.len()];
-            volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
-            for (a, &n) in nodes.iter().enumerate() {
-                for c in 0..3 {
-                    gvol_full[3 * n + c] += g[3 * a + c];
-                    r_full[3 * n + c] -= inp.pressure * g[3 * a + c];
-                }
-            }
+        volume = surface::volume_and_gradient(cav, xcur, &mut gvol_full, |_, _, _, _| {});
+        for (rv, &g) in r_full.iter_mut().zip(&gvol_full) {
+            *rv -= inp.pressure * g;
         }
     }
     if !loads.nodal_forces.is_empty() {
@@ -235,20 +227,10 @@ pub fn evaluate<D: Scalar>(model: &Model, inp: &Inputs<D>, loads: &Loads) -> Res
             }
         }
     }
-    for (b, fb) in loads.body_forces.iter().enumerate() {
-        for k in 0..3 {
-            if let BodyDof::Free(i) = dofs.body_dofs[b][k] {
-                r[i] -= fb[k];
-            }
-        }
-    }
-    // caps without pressure (as in Model::assemble; the areas follow the reference shape)
-    if let Some(cav) = model.cavity.as_ref().filter(|c| !c.cap_load) {
-        for (b, area) in surface::rigid_cap_areas(cav, dofs, x0).into_iter().enumerate() {
-            if let BodyDof::Free(i) = dofs.body_dofs[b][2] {
-                r[i] += inp.pressure * area;
-            }
-        }
+    // the caps' pressure correction and the bodies' dead forces (as Model::assemble; the cap
+    // areas follow the reference shape)
+    for (i, v) in model.rigid_load_terms(x0, inp.pressure, &loads.body_forces) {
+        r[i] += v;
     }
     Ok(State { x0: x0.to_vec(), u, r_full, r, volume, gvol_full, bodies })
 }

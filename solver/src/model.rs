@@ -383,42 +383,25 @@ impl Model {
         let mut gvol_full = if self.cavity.is_some() { vec![0.0; 3 * x0.len()] } else { Vec::new() };
         if let Some(cav) = &self.cavity {
             let p = loads.pressure;
-            let xcur: Vec<[f64; 3]> = x0.iter().zip(&u).map(|(a, b)| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]).collect();
-            let mut items: Vec<&[usize]> = cav.face_nodes.iter().map(|v| v.as_slice()).collect();
-            let nfaces = items.len();
-            items.extend(cav.edges.iter().map(|e| e.0.as_slice()));
-            for (idx, nodes) in items.into_iter().enumerate() {
-                let xs: Vec<[f64; 3]> = nodes.iter().map(|&n| xcur[n]).collect();
-                let m = 3 * xs.len();
-                let mut g = vec![0.0; m];
-                let is_face = idx < nfaces;
-                volume += if is_face { surface::face_volume_grad(&cav.rule, &xs, &mut g) } else { surface::edge_volume_grad(&xs, &mut g) };
-                for (a, &n) in nodes.iter().enumerate() {
-                    for c in 0..3 {
-                        gvol_full[3 * n + c] += g[3 * a + c];
+            let xcur = |n: usize| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]];
+            let cached = sp.and_then(|sp| self.cavity_scatter_tables(sp));
+            volume = surface::volume_and_gradient(cav, xcur, &mut gvol_full, |idx, nodes, xs, is_face| {
+                if let (Some(kv), Some(sp), true) = (kv.as_mut(), sp, p != 0.0) {
+                    let m = 3 * xs.len();
+                    let mut h = vec![0.0; m * m];
+                    surface::item_volume_hessian(&cav.rule, xs, is_face, &mut h);
+                    h.iter_mut().for_each(|v| *v *= -p);
+                    let mut rws: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
+                    self.fill_rows(nodes, &kin, &mut rws);
+                    match cached {
+                        Some(tables) => scatter_cached(&tables[idx], &rws, &h, kv),
+                        None => self.scatter(sp, &rws, &h, kv),
                     }
                 }
-                if p != 0.0 {
-                    for (a, &n) in nodes.iter().enumerate() {
-                        for c in 0..3 {
-                            r_full[3 * n + c] -= p * g[3 * a + c];
-                        }
-                    }
-                    if let (Some(kv), Some(sp)) = (kv.as_mut(), sp) {
-                        let mut h = vec![0.0; m * m];
-                        if is_face {
-                            surface::face_volume_hessian(&cav.rule, &xs, &mut h);
-                        } else {
-                            surface::edge_volume_hessian(&xs, &mut h);
-                        }
-                        h.iter_mut().for_each(|v| *v *= -p);
-                        let mut rws: Vec<Vec<(u32, f64)>> = vec![Vec::new(); m];
-                        self.fill_rows(nodes, &kin, &mut rws);
-                        match self.cavity_scatter_tables(sp) {
-                            Some(tables) => scatter_cached(&tables[idx], &rws, &h, kv),
-                            None => self.scatter(sp, &rws, &h, kv),
-                        }
-                    }
+            });
+            if p != 0.0 {
+                for (rv, g) in r_full.iter_mut().zip(&gvol_full) {
+                    *rv -= p * g;
                 }
             }
         }
@@ -434,23 +417,9 @@ impl Model {
         // reduce the residual (and the volume gradient)
         let mut r = self.reduce_full(&kin, &r_full);
         let dvol = if gvol_full.is_empty() { Vec::new() } else { self.reduce_full(&kin, &gvol_full) };
-        // caps without pressure: remove each rigid cap's share p·A_cap (surface module docs)
-        if let Some(cav) = self.cavity.as_ref().filter(|c| !c.cap_load) {
-            if loads.pressure != 0.0 {
-                for (b, area) in surface::rigid_cap_areas(cav, &self.dofs, x0).into_iter().enumerate() {
-                    if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][2] {
-                        r[i] += loads.pressure * area;
-                    }
-                }
-            }
-        }
-        // dead forces on rigid-body reference points
-        for (b, fb) in loads.body_forces.iter().enumerate() {
-            for k in 0..3 {
-                if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][k] {
-                    r[i] -= fb[k];
-                }
-            }
+        // the caps' pressure correction and the dead forces on the bodies' reference points
+        for (i, v) in self.rigid_load_terms(x0, loads.pressure, &loads.body_forces) {
+            r[i] += v;
         }
         // second-order rigid rotation term Σ R_i ∂²u_i/∂ψa∂ψb
         if let (Some(kv), Some(sp)) = (kv.as_mut(), sp) {
@@ -485,19 +454,41 @@ impl Model {
 
     /// The reduced load of a unit cavity pressure: ∂V/∂q (`dvol` of an assembly), less each rigid
     /// cap's area on its body's free z translation when the caps carry no pressure
-    /// ([`Cavity::cap_load`]).
+    /// ([`Cavity::cap_load`]; the pressure part of [`Model::rigid_load_terms`]).
     pub fn unit_pressure_load(&self, dvol: &[f64]) -> Vec<f64> {
         let mut l = dvol.to_vec();
-        if let Some(cav) = self.cavity.as_ref().filter(|c| !c.cap_load) {
-            for (b, area) in surface::rigid_cap_areas(cav, &self.dofs, &self.mesh.nodes).into_iter().enumerate() {
-                if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][2] {
-                    if let Some(v) = l.get_mut(i) {
-                        *v -= area;
-                    }
-                }
+        for (i, a) in self.rigid_load_terms(&self.mesh.nodes, 1.0, &[]) {
+            if let Some(v) = l.get_mut(i) {
+                *v -= a;
             }
         }
         l
+    }
+
+    /// The terms of the reduced residual that act on the rigid bodies' free DOFs directly, as
+    /// (reduced index, value) pairs to add: +p·A_cap on each body's free z translation when the
+    /// caps carry no pressure ([`Cavity::cap_load`]: the caps' share of −p ∂V/∂q removed; A_cap
+    /// of the reference positions `x0`, which rigid motions keep; see the surface module docs),
+    /// and −F on the free translations of each body whose reference point carries the dead force
+    /// `body_forces[b]`. Written once for the full model, its adjoint (dual numbers: the areas
+    /// move with the shape) and the reduced model (its rigid coordinates).
+    pub fn rigid_load_terms<D: crate::scalar::Scalar>(&self, x0: &[[D; 3]], pressure: D, body_forces: &[[f64; 3]]) -> Vec<(usize, D)> {
+        let mut out = Vec::new();
+        if let Some(cav) = self.cavity.as_ref().filter(|c| !c.cap_load) {
+            for (b, area) in surface::rigid_cap_areas(cav, &self.dofs, x0).into_iter().enumerate() {
+                if let crate::dofmap::BodyDof::Free(i) = self.dofs.body_dofs[b][2] {
+                    out.push((i, pressure * area));
+                }
+            }
+        }
+        for (b, fb) in body_forces.iter().enumerate() {
+            for k in 0..3 {
+                if let Some(crate::dofmap::BodyDof::Free(i)) = self.dofs.body_dofs.get(b).map(|d| d[k]) {
+                    out.push((i, crate::scalar::c(-fb[k])));
+                }
+            }
+        }
+        out
     }
 
     /// (∂u/∂q)ᵀ v for a full nodal vector v (3 per node) at the kinematics `kin`: reduces a

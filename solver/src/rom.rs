@@ -1461,7 +1461,7 @@ impl CavityProj {
             xl.extend(loc.iter().map(|&a| xs[a as usize]));
             gl.clear();
             gl.resize(3 * loc.len(), 0.0);
-            volume += if is_face { surface::face_volume_grad(&cav.rule, &xl, &mut gl) } else { surface::edge_volume_grad(&xl, &mut gl) };
+            volume += surface::item_volume_grad(&cav.rule, &xl, is_face, &mut gl);
             for (d, &a) in loc.iter().enumerate() {
                 for c in 0..3 {
                     g[3 * a as usize + c] += gl[3 * d + c];
@@ -1864,22 +1864,10 @@ impl<'a> RomPath<'a> {
         let k = self.red.basis.k;
         let nb = self.red.basis.n;
         let zi = |i: usize| k + i - nb;
-        // caps without pressure: +p A_cap on each body's free z translation (as the full model)
-        if let Some(cav) = model.cavity.as_ref().filter(|c| !c.cap_load) {
-            if p != 0.0 {
-                for (b, area) in surface::rigid_cap_areas(cav, &model.dofs, x0).into_iter().enumerate() {
-                    if let BodyDof::Free(i) = model.dofs.body_dofs[b][2] {
-                        r[zi(i)] += p * area;
-                    }
-                }
-            }
-        }
-        for (b, fb) in loads.body_forces.iter().enumerate() {
-            for c in 0..3 {
-                if let BodyDof::Free(i) = model.dofs.body_dofs[b][c] {
-                    r[zi(i)] -= fb[c];
-                }
-            }
+        // the caps' pressure correction and the bodies' dead forces (the full model's terms, on
+        // the rigid coordinates)
+        for (i, v) in model.rigid_load_terms(x0, p, &loads.body_forces) {
+            r[zi(i)] += v;
         }
         if !loads.nodal_forces.is_empty() {
             // dead nodal forces: −(∂u/∂z)ᵀ f over the loaded nodes
@@ -2289,18 +2277,10 @@ impl<'a> RomPath<'a> {
             scatter(conn, &f, 1.0, &mut r);
         }
         if let Some(cav) = &model.cavity {
-            let p = loads.pressure;
-            let mut g = Vec::new();
-            for (nodes, is_face) in cav.face_nodes.iter().map(|v| (v.as_slice(), true)).chain(cav.edges.iter().map(|e| (e.0.as_slice(), false))) {
-                let xs: Vec<[f64; 3]> = nodes.iter().map(|&nn| [x0[nn][0] + u[nn][0], x0[nn][1] + u[nn][1], x0[nn][2] + u[nn][2]]).collect();
-                g.clear();
-                g.resize(3 * xs.len(), 0.0);
-                if is_face {
-                    surface::face_volume_grad(&cav.rule, &xs, &mut g);
-                } else {
-                    surface::edge_volume_grad(&xs, &mut g);
-                }
-                scatter(nodes, &g, -p, &mut r);
+            let mut g = vec![0.0; 3 * x0.len()];
+            surface::volume_and_gradient(cav, |nn| [x0[nn][0] + u[nn][0], x0[nn][1] + u[nn][1], x0[nn][2] + u[nn][2]], &mut g, |_, _, _, _| {});
+            for (nn, gn) in g.chunks_exact(3).enumerate().filter(|(_, gn)| gn.iter().any(|v| *v != 0.0)) {
+                scatter(&[nn], gn, -loads.pressure, &mut r);
             }
         }
         let rn = r[..n].iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -2312,12 +2292,8 @@ impl<'a> RomPath<'a> {
     fn unit_pressure_load(&self, dvol: &[f64]) -> Vec<f64> {
         let model = self.red.model;
         let mut l = dvol.to_vec();
-        if let Some(cav) = model.cavity.as_ref().filter(|c| !c.cap_load) {
-            for (b, area) in surface::rigid_cap_areas(cav, &model.dofs, &model.mesh.nodes).into_iter().enumerate() {
-                if let BodyDof::Free(i) = model.dofs.body_dofs[b][2] {
-                    l[self.red.basis.k + i - self.red.basis.n] -= area;
-                }
-            }
+        for (i, a) in model.rigid_load_terms(&model.mesh.nodes, 1.0, &[]) {
+            l[self.red.basis.k + i - self.red.basis.n] -= a;
         }
         l
     }

@@ -46,6 +46,12 @@ pub struct Cavity {
 }
 
 impl Cavity {
+    /// Every term of the volume: the wall faces, then the boundary edges, each with whether it
+    /// is a face (the order the cavity's scatter tables and Hessian caches follow).
+    pub fn items(&self) -> impl Iterator<Item = (&[usize], bool)> + '_ {
+        self.face_nodes.iter().map(|v| (v.as_slice(), true)).chain(self.edges.iter().map(|e| (e.0.as_slice(), false)))
+    }
+
     pub fn new(mesh: &Mesh, faces: &[Face]) -> Self {
         let face_nodes: Vec<Vec<usize>> = faces.iter().map(|f| mesh.face_nodes(*f)).collect();
         let nf = face_nodes.first().map(|v| v.len()).unwrap_or(4);
@@ -284,21 +290,55 @@ pub fn rigid_cap_areas<D: Scalar>(cav: &Cavity, dofs: &crate::dofmap::DofMap, x0
     areas
 }
 
-/// Cavity volume of the given configuration (positions of all nodes).
-pub fn cavity_volume(cav: &Cavity, xcur: &[[f64; 3]]) -> f64 {
-    let mut v = 0.0;
-    let mut g = vec![0.0; 27];
-    for fnodes in &cav.face_nodes {
-        let x: Vec<[f64; 3]> = fnodes.iter().map(|&n| xcur[n]).collect();
-        g.resize(3 * x.len(), 0.0);
-        v += face_volume_grad(&cav.rule, &x, &mut g);
+/// One term of the cavity volume ([`Cavity::items`]): a wall face's or a boundary edge's volume,
+/// with its gradient written into `grad` (3 per node of the term).
+pub fn item_volume_grad<D: Scalar>(rule: &FaceRule, x: &[[D; 3]], is_face: bool, grad: &mut [D]) -> D {
+    if is_face {
+        face_volume_grad(rule, x, grad)
+    } else {
+        edge_volume_grad(x, grad)
     }
-    for e in &cav.edges {
-        let x: Vec<[f64; 3]> = e.0.iter().map(|&n| xcur[n]).collect();
-        let mut g = vec![0.0; 3 * x.len()];
-        v += edge_volume_grad(&x, &mut g);
+}
+
+/// One term's Hessian (see [`item_volume_grad`]), written into `h` (row-major, 3 per node).
+pub fn item_volume_hessian(rule: &FaceRule, x: &[[f64; 3]], is_face: bool, h: &mut [f64]) {
+    if is_face {
+        face_volume_hessian(rule, x, h)
+    } else {
+        edge_volume_hessian(x, h)
+    }
+}
+
+/// The cavity volume at the node positions `x(n)`, its gradient added into `grad` (3 per mesh
+/// node; empty = not wanted), and every term shown to `each` (its index in [`Cavity::items`],
+/// its nodes and positions, whether it is a face) for a caller that needs the terms' Hessians.
+/// The one volume loop of the full model, its adjoint (dual numbers) and the reduced model's
+/// error indicator.
+pub fn volume_and_gradient<D: Scalar>(cav: &Cavity, x: impl Fn(usize) -> [D; 3], grad: &mut [D], mut each: impl FnMut(usize, &[usize], &[[D; 3]], bool)) -> D {
+    let mut v = D::zero();
+    let mut xs = Vec::with_capacity(9);
+    let mut g = Vec::with_capacity(27);
+    for (idx, (nodes, is_face)) in cav.items().enumerate() {
+        xs.clear();
+        xs.extend(nodes.iter().map(|&n| x(n)));
+        g.clear();
+        g.resize(3 * xs.len(), D::zero());
+        v += item_volume_grad(&cav.rule, &xs, is_face, &mut g);
+        if !grad.is_empty() {
+            for (a, &n) in nodes.iter().enumerate() {
+                for c in 0..3 {
+                    grad[3 * n + c] += g[3 * a + c];
+                }
+            }
+        }
+        each(idx, nodes, &xs, is_face);
     }
     v
+}
+
+/// Cavity volume of the given configuration (positions of all nodes).
+pub fn cavity_volume(cav: &Cavity, xcur: &[[f64; 3]]) -> f64 {
+    volume_and_gradient(cav, |n| xcur[n], &mut [], |_, _, _, _| {})
 }
 
 /// Consistent nodal forces (3 per mesh node) of a uniform dead traction `t` (force per

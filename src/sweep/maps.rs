@@ -1,6 +1,6 @@
 //! Maps like the letter's Fig. 5: max |θ|, max |τ| and Ω over (α, l) at r = 5√3, 13.2 and
 //! 20 mm (the grid's r values nearest to these), one figure per quantity with one panel per r,
-//! a shared viridis colour scale and bar; infeasible designs (max radius above the ballooning
+//! a viridis colour scale and bar per panel; infeasible designs (max radius above the ballooning
 //! limit at the Ω pressure) light grey, failed ones (no Ω, invalid geometry, model error) dark
 //! grey, designs not (yet) computed white. PNG and SVG.
 
@@ -77,7 +77,7 @@ pub fn draw_maps(out: &Path, grid: &Grid, rows: &[Row]) -> Result<Vec<PathBuf>> 
     for q in &QUANTITIES {
         let png = out.join(format!("{}.png", q.stem));
         let svg = out.join(format!("{}.svg", q.stem));
-        let (w, h) = ((140 + 430 * panel.rs.len() as u32).max(760), 500);
+        let (w, h) = ((40 + (430 + BAR_WIDTH) * panel.rs.len() as u32).max(760), 500);
         draw_one(BitMapBackend::new(&png, (w, h)).into_drawing_area(), &panel, q)?;
         draw_one(SVGBackend::new(&svg, (w, h)).into_drawing_area(), &panel, q)?;
         files.push(png);
@@ -105,23 +105,7 @@ where
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("map {}: {e:?}", q.stem);
     root.fill(&WHITE).map_err(err)?;
-    // colour scale over the feasible values of every panel
-    let mut vals = Vec::new();
-    for &r in &p.rs {
-        for &l in &p.ls {
-            for &a in &p.alphas {
-                if let Some(row) = p.row(r, l, a) {
-                    if row.primary.feasible {
-                        if let Some(v) = (q.value)(row).filter(|v| v.is_finite()) {
-                            vals.push(v);
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let (vmin, vmax) = colour_range(&vals);
-    let (w, h) = root.dim_in_pixel();
+    let (_, h) = root.dim_in_pixel();
     root.draw_text(
         "light grey: infeasible (max radius above the ballooning limit); dark grey: failed (no Ω); white: not computed",
         &TextStyle::from((FONT, 13).into_font()).color(&RGBColor(80, 80, 80)),
@@ -129,15 +113,17 @@ where
     )
     .map_err(err)?;
     let (root, _) = root.split_vertically(h - 22);
-    let root = root.titled(&format!("{} over (α, l)", q.label), (FONT, 18)).map_err(err)?;
-    let (main, bar) = root.split_horizontally(w.saturating_sub(110));
-    let panels = main.split_evenly((1, p.rs.len()));
+    let root = root.titled(&format!("{} over (α, l), colour scale per panel", q.label), (FONT, 18)).map_err(err)?;
+    let panels = root.split_evenly((1, p.rs.len()));
     let a_edges = cell_edges(&p.alphas, 1.0);
     let l_edges = cell_edges(&p.ls, 0.5);
     let (x0, x1) = (a_edges[0].0, a_edges[a_edges.len() - 1].1);
     let (y0, y1) = (l_edges[0].0, l_edges[l_edges.len() - 1].1);
     for (area, &r) in panels.iter().zip(&p.rs) {
-        let mut chart = ChartBuilder::on(area).caption(format!("r = {r:.2} mm"), (FONT, 17)).margin(10).x_label_area_size(45).y_label_area_size(55).build_cartesian_2d(x0..x1, y0..y1).map_err(err)?;
+        let (vmin, vmax) = panel_range(p, q, r);
+        let (pw, _) = area.dim_in_pixel();
+        let (area, bar) = area.split_horizontally(pw.saturating_sub(BAR_WIDTH));
+        let mut chart = ChartBuilder::on(&area).caption(format!("r = {r:.2} mm"), (FONT, 17)).margin(10).x_label_area_size(45).y_label_area_size(55).build_cartesian_2d(x0..x1, y0..y1).map_err(err)?;
         chart
             .configure_mesh()
             .disable_mesh()
@@ -162,10 +148,30 @@ where
             }
         }
         chart.draw_series(cells).map_err(err)?;
+        colour_bar(&bar, vmin, vmax, None, (37, 55))?;
     }
-    colour_bar(&bar, vmin, vmax, None, (40, 55))?;
     root.present().map_err(err)?;
     Ok(())
+}
+
+/// Width of each panel's colour bar (pixels).
+const BAR_WIDTH: u32 = 125;
+
+/// The colour scale of one panel: its feasible values' range. Per panel, because Ω spans four
+/// orders of magnitude between r = 5√3 and r = 20 mm on the Table-I grid: a shared scale
+/// paints the thick-walled panels one colour.
+fn panel_range(p: &Panels, q: &Quantity, r: f64) -> (f64, f64) {
+    let mut vals = Vec::new();
+    for &l in &p.ls {
+        for &a in &p.alphas {
+            if let Some(row) = p.row(r, l, a).filter(|row| row.primary.feasible) {
+                if let Some(v) = (q.value)(row).filter(|v| v.is_finite()) {
+                    vals.push(v);
+                }
+            }
+        }
+    }
+    colour_range(&vals)
 }
 
 /// Colour of a design that ran but is not feasible: light grey when it ballooned past the

@@ -34,6 +34,24 @@ pub struct OptimiserBest {
 pub const BEST_KEYS: [&str; 7] = ["p_kPa", "theta_deg", "tau_Nm", "omega_J_m3", "max_radius_mm", "evaluations", "status"];
 
 /// Read `DIR/best.json`.
+/// The `[fidelity]` an optimiser directory's single-stage run used (`input.json`'s
+/// problem.fidelity); None when unknown or when the run had stages (each stage has its own).
+fn optimiser_fidelity(dir: &Path) -> Option<Value> {
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(dir.join("input.json")).ok()?).ok()?;
+    let pr = v.get("problem")?;
+    if pr.pointer("/optimise/stages").and_then(Value::as_array).is_some_and(|a| !a.is_empty()) {
+        return None;
+    }
+    pr.get("fidelity").cloned()
+}
+
+/// Two `[fidelity]` tables name the same model: the same preset / mesh and the same reduced
+/// model (or none); fallback thresholds and the like do not change the model's answer.
+fn same_fidelity(a: &Value, b: Option<&Value>) -> bool {
+    let key = |v: Option<&Value>, k: &str| v.and_then(|v| v.get(k)).filter(|x| !x.is_null()).cloned();
+    ["preset", "mesh", "rom"].iter().all(|k| key(Some(a), k) == key(b, k))
+}
+
 pub fn read_best(dir: &Path) -> Result<OptimiserBest> {
     let p = dir.join("best.json");
     let text = std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
@@ -119,6 +137,16 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
             warnings.push(format!("the sweep's [{k}] differs from this problem's"));
         }
     }
+    // the optimiser's fidelity (its input.json, single-stage runs) against the sweep's: Ω at two
+    // fidelities is not comparable, so its own Ω is then not called within 1 % (the letter's-rule
+    // row below evaluates its design at the sweep's fidelity)
+    let other_fidelity = optimiser_fidelity(opt_dir).filter(|f| !same_fidelity(f, manifest.problem.get("fidelity")));
+    if let Some(f) = &other_fidelity {
+        warnings.push(format!(
+            "the optimiser ran at another fidelity ({f}) than the sweep ({}): its own Ω is not compared; see its design evaluated at the sweep's fidelity",
+            manifest.problem.get("fidelity").map_or("?".into(), |v| v.to_string())
+        ));
+    }
     let complete = rows.len() as u64 == manifest.n_designs;
     if !complete {
         warnings.push(format!("the sweep is incomplete: {} of {} designs", rows.len(), manifest.n_designs));
@@ -138,7 +166,7 @@ pub fn verify(problem: &Problem, sweep_dir: &Path, opt_dir: &Path, mode: Option<
     let s_omega = sm.omega_j_m3.unwrap_or(f64::NAN);
     let fe_rows = rows.iter().filter(|r| r.status != "invalid-geometry").count() as u64;
     let rel = (best.omega_j_m3 - s_omega) / s_omega.abs();
-    let within = rel >= -0.01;
+    let within = rel >= -0.01 && other_fidelity.is_none();
     let (dist, per) = design_distance(&sb.design, &best.design);
     let opt_feasible = !FAILED.contains(&best.status.as_str()) && best.max_radius_mm.is_some_and(|r| super::within_radius_limit(r, limit));
     let ratio = if best.evaluations > 0 { Some(fe_rows as f64 / best.evaluations as f64) } else { None };
@@ -251,4 +279,27 @@ fn letter_rule_row(problem: &Problem, design: &BTreeMap<String, f64>, range: cra
     };
     let d = crate::geometry::Design { values: design.clone(), variant: problem.design.variant };
     Ok(super::evaluate_design_guarded(0, &d, range, &v, &opts, p_max))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fidelity_mismatch_is_the_model_not_the_fallback() {
+        let rom = json!({"preset": "sweep", "rom": "studies/rom/a", "rom_fallback": null});
+        assert!(same_fidelity(&rom, Some(&json!({"preset": "sweep", "rom": "studies/rom/a", "rom_fallback": 0.1}))));
+        assert!(!same_fidelity(&rom, Some(&json!({"preset": "sweep"}))), "reduced vs full model");
+        assert!(!same_fidelity(&json!({"preset": "sweep"}), Some(&json!({"preset": "default"}))));
+        assert!(same_fidelity(&json!({"preset": "sweep", "mesh": null}), Some(&json!({"preset": "sweep"}))));
+        assert!(!same_fidelity(&json!({"preset": "sweep"}), None));
+        // a staged run's fidelity is unknown here: no warning
+        let dir = std::env::temp_dir().join(format!("twistopt-verify-fid-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("input.json"), r#"{"problem": {"fidelity": {"preset": "coarse"}, "optimise": {"stages": [{"mesh": "default"}]}}}"#).unwrap();
+        assert_eq!(optimiser_fidelity(&dir), None);
+        std::fs::write(dir.join("input.json"), r#"{"problem": {"fidelity": {"preset": "coarse"}, "optimise": {"stages": []}}}"#).unwrap();
+        assert_eq!(optimiser_fidelity(&dir), Some(json!({"preset": "coarse"})));
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

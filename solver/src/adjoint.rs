@@ -476,16 +476,10 @@ pub struct LimitSensitivity {
 /// the last converged state before the limit point, so the result approximates the derivative at
 /// the limit point to the distance of that state from it.
 pub fn limit_sensitivity(model: &Model, q: &[f64], loads: &Loads, factor: &Factor, k_values: &[f64], directions: &[Direction]) -> Result<LimitSensitivity, AdjointError> {
-    let n = model.n_reduced();
-    let mut phi: Vec<f64> = (0..n).map(|i| 1.0 + 0.1 * ((i as f64) * 0.7548776662).fract()).collect();
-    for _ in 0..8 {
-        let next = factor.solve(&phi)?;
-        let norm = next.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if !(norm.is_finite() && norm > 0.0) {
-            return Err(AdjointError::NonFinite(0));
-        }
-        phi = next.iter().map(|v| v / norm).collect();
-    }
+    let phi = factor.inverse_iteration(8).map_err(|e| match e {
+        SolveError::NonFinite => AdjointError::NonFinite(0),
+        e => e.into(),
+    })?;
     let kphi = model.sym_matvec(k_values, &phi);
     let rayleigh = phi.iter().zip(&kphi).map(|(a, b)| a * b).sum::<f64>();
     let dot = |v: &[f64]| phi.iter().zip(v).map(|(a, b)| a * b).sum::<f64>();

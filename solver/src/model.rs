@@ -826,6 +826,23 @@ impl Factor {
     pub fn is_definite(&self) -> bool {
         matches!(self.kind, FactorKind::Llt(_))
     }
+
+    /// The unit eigenvector of the factored matrix whose eigenvalue is nearest zero, by
+    /// `iterations` steps of inverse iteration from a fixed start: near a limit point or a
+    /// bifurcation, the mode in which the state loses stability.
+    pub fn inverse_iteration(&self, iterations: usize) -> Result<Vec<f64>, SolveError> {
+        let n = self.fwd.len();
+        let mut phi: Vec<f64> = (0..n).map(|i| 1.0 + 0.1 * ((i as f64) * 0.7548776662).fract()).collect();
+        for _ in 0..iterations {
+            let next = self.solve(&phi)?;
+            let norm = next.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if !(norm.is_finite() && norm > 0.0) {
+                return Err(SolveError::NonFinite);
+            }
+            phi = next.iter().map(|v| v / norm).collect();
+        }
+        Ok(phi)
+    }
 }
 
 /// Fill-reducing ordering of the tangent's symbolic analysis.

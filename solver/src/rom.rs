@@ -124,6 +124,10 @@ pub struct Basis {
     /// a reduced pressure space (None: each element condenses its own pressure, as the full model)
     #[serde(default)]
     pub pressure: Option<PressureBasis>,
+    /// singular values of the modes [`Basis::append_directions`] appended after the POD modes
+    /// (the last `appended_singular_values.len()` columns; empty: none)
+    #[serde(default)]
+    pub appended_singular_values: Vec<f64>,
 }
 
 /// A reduced pressure space: modes of the elements' discontinuous pressure coefficients
@@ -242,7 +246,70 @@ impl Basis {
                 v[i * k + j] = u[(i, j)];
             }
         }
-        Ok(Basis { frame: Frame::Cartesian, n, k, reference: Vec::new(), v, singular_values: s, pressure: None })
+        Ok(Basis { frame: Frame::Cartesian, n, k, reference: Vec::new(), v, singular_values: s, pressure: None, appended_singular_values: Vec::new() })
+    }
+
+    /// Append directions that the snapshots do not span (e.g. the tangent's null vectors at the
+    /// training paths' instabilities, which no converged state contains): each direction is
+    /// normalised, its component in the basis removed (two Gram–Schmidt passes), and the POD of
+    /// what is left gives at most `max` new modes, those whose singular value is above `tol`
+    /// (a direction entirely outside the basis counts 1). Returns the singular values of the
+    /// appended modes. The basis stays orthonormal; the first k modes are unchanged.
+    pub fn append_directions(&mut self, directions: &[Vec<f64>], max: usize, tol: f64) -> Result<Vec<f64>, RomError> {
+        let (n, k) = (self.n, self.k);
+        let mut rest: Vec<Vec<f64>> = Vec::new();
+        for (i, d) in directions.iter().enumerate() {
+            if d.len() != n {
+                return Err(RomError::SnapshotSize(i, d.len(), n));
+            }
+            if !d.iter().all(|v| v.is_finite()) {
+                return Err(RomError::NonFinite(i));
+            }
+            let norm = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if norm == 0.0 {
+                continue;
+            }
+            let mut r: Vec<f64> = d.iter().map(|v| v / norm).collect();
+            for _ in 0..2 {
+                let a = self.project(&r);
+                for (ri, i) in r.iter_mut().zip(0..n) {
+                    *ri -= self.row(i).iter().zip(&a).map(|(v, x)| v * x).sum::<f64>();
+                }
+            }
+            rest.push(r);
+        }
+        if rest.is_empty() || max == 0 {
+            return Ok(Vec::new());
+        }
+        let extra = Basis::pod(&rest, Truncation::Modes(max))?;
+        let m = extra.singular_values.iter().take(extra.k).take_while(|&&s| s > tol).count();
+        if m == 0 {
+            return Ok(Vec::new());
+        }
+        let mut v = vec![0.0; n * (k + m)];
+        for i in 0..n {
+            v[i * (k + m)..i * (k + m) + k].copy_from_slice(self.row(i));
+            v[i * (k + m) + k..(i + 1) * (k + m)].copy_from_slice(&extra.row(i)[..m]);
+        }
+        // re-orthogonalise the new columns against the old ones and each other (round-off)
+        for j in k..k + m {
+            for _ in 0..2 {
+                for c in 0..j {
+                    let dot: f64 = (0..n).map(|i| v[i * (k + m) + c] * v[i * (k + m) + j]).sum();
+                    for i in 0..n {
+                        v[i * (k + m) + j] -= dot * v[i * (k + m) + c];
+                    }
+                }
+            }
+            let norm = (0..n).map(|i| v[i * (k + m) + j].powi(2)).sum::<f64>().sqrt();
+            for i in 0..n {
+                v[i * (k + m) + j] /= norm;
+            }
+        }
+        self.v = v;
+        self.k = k + m;
+        self.appended_singular_values.extend_from_slice(&extra.singular_values[..m]);
+        Ok(extra.singular_values[..m].to_vec())
     }
 
     /// Row i of V.
@@ -276,7 +343,10 @@ impl Basis {
         for i in 0..self.n {
             v[i * k..(i + 1) * k].copy_from_slice(&self.row(i)[..k]);
         }
-        Basis { frame: self.frame, n: self.n, k, reference: self.reference.clone(), v, singular_values: self.singular_values.clone(), pressure: self.pressure.clone() }
+        Basis { frame: self.frame, n: self.n, k, reference: self.reference.clone(), v, singular_values: self.singular_values.clone(), pressure: self.pressure.clone(), appended_singular_values: {
+            let pod = self.k - self.appended_singular_values.len();
+            self.appended_singular_values[..k.saturating_sub(pod)].to_vec()
+        } }
     }
 }
 
@@ -2539,5 +2609,40 @@ impl Rom {
     /// The reduced path model of `model` under loads from `from` (λ = 0) to `to` (λ = 1).
     pub fn path<'a>(&'a self, model: &'a Model, from: Loads, to: Loads, functionals: Vec<Functional>) -> Result<RomPath<'a>, RomError> {
         RomPath::with_tensors(model, &self.basis, &self.sample, from, to, functionals, Some(&self.tensors))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn append_directions_adds_only_what_the_basis_lacks() {
+        // snapshots span e0, e1 of R^6; directions: one inside the span, one along e2 + e0
+        let e = |i: usize| (0..6).map(|j| if j == i { 1.0 } else { 0.0 }).collect::<Vec<f64>>();
+        let snaps = vec![e(0), e(1), vec![1.0, 1.0, 0.0, 0.0, 0.0, 0.0]];
+        let mut b = Basis::pod(&snaps, Truncation::Modes(4)).unwrap();
+        assert_eq!(b.k, 2);
+        let inside = vec![3.0, -2.0, 0.0, 0.0, 0.0, 0.0];
+        let outside = vec![1.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let s = b.append_directions(&[inside.clone(), outside], 3, 1e-3).unwrap();
+        assert_eq!(s.len(), 1, "only the new direction: {s:?}");
+        assert!((s[0] - 0.5f64.sqrt()).abs() < 1e-12, "its part outside the span: {}", s[0]);
+        assert_eq!(b.k, 3);
+        // orthonormal, and the new mode is ±e2
+        for a in 0..3 {
+            for c in 0..3 {
+                let dot: f64 = (0..6).map(|i| b.row(i)[a] * b.row(i)[c]).sum();
+                assert!((dot - if a == c { 1.0 } else { 0.0 }).abs() < 1e-12);
+            }
+        }
+        assert!((b.row(2)[2].abs() - 1.0).abs() < 1e-12);
+        // a direction already in the span adds nothing
+        let s = b.append_directions(&[inside], 3, 1e-3).unwrap();
+        assert!(s.is_empty());
+        assert_eq!(b.k, 3);
+        // malformed input is an error, not a panic
+        assert!(b.append_directions(&[vec![1.0; 5]], 3, 1e-3).is_err());
+        assert!(b.append_directions(&[vec![f64::NAN; 6]], 3, 1e-3).is_err());
     }
 }

@@ -26,6 +26,11 @@ pub struct TrainOptions {
     /// each element condenses its own pressure, as the full model does
     #[serde(default)]
     pub pressure_modes: Option<Truncation>,
+    /// at most this many modes added to the POD basis from the full tangent's lowest
+    /// eigenvectors at the last states of the training ramps that end at an instability
+    /// ([`end_modes`]): the buckling directions no converged state contains (0: none)
+    #[serde(default)]
+    pub buckling_modes: usize,
 }
 
 impl Default for TrainOptions {
@@ -38,6 +43,7 @@ impl Default for TrainOptions {
             ecsw: EcswOptions { tau: 0.01, max_elements: 400, tangent_directions: 2, points: false, max_snapshots: 0 },
             frame: Frame::Cylindrical,
             pressure_modes: Some(Truncation::Modes(10)),
+            buckling_modes: 0,
         }
     }
 }
@@ -79,6 +85,10 @@ pub struct TrainReport {
     pub pod_time_s: f64,
     pub ecsw_time_s: f64,
     pub full_newton_iterations: usize,
+    /// singular values of the modes appended from the ramps' end modes (fraction of a unit
+    /// direction outside the POD basis; empty: none added)
+    #[serde(default)]
+    pub buckling_singular_values: Vec<f64>,
 }
 
 /// Designs at the points of the Halton sequence over the Table-I box (values in [0.1, 0.9] of
@@ -194,12 +204,45 @@ pub fn bases(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp]) -> Result<Ba
     let mut basis = Basis::pod(&snaps, t.truncation)?;
     basis.frame = t.frame;
     basis.reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
+    if t.buckling_modes > 0 {
+        let dirs = end_modes(opts, t, ramps)?;
+        basis.append_directions(&dirs, t.buckling_modes, BUCKLING_MODE_TOL)?;
+    }
     if let Some(tr) = t.pressure_modes {
         let ps: Vec<Vec<f64>> = ramps.iter().flat_map(|r| r.pressure_states.iter().cloned()).collect();
         let np = opts.formulation.pressure.dim().max(1);
         basis.pressure = Some(twistopt_solver::rom::PressureBasis::pod(&ps, np, tr)?);
     }
     Ok(basis)
+}
+
+/// A direction outside the POD basis adds a mode only if at least this fraction of it (of a
+/// unit vector) lies outside.
+pub const BUCKLING_MODE_TOL: f64 = 0.05;
+
+/// The full tangent's lowest eigenvector (by inverse iteration with its factor) at the last
+/// state of every training ramp that ended before `t.p_max_kpa` (at a pressure maximum or where
+/// the tangent lost positive definiteness), as its nodal part in the basis frame. At a
+/// bifurcation the path's states never contain that mode, so a basis of states alone cannot
+/// lose stability there: the reduced path runs on past the full model's end.
+pub fn end_modes(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp]) -> Result<Vec<Vec<f64>>> {
+    let reference = reference_nodes(opts, t.frame, t.scenes.first().copied().unwrap_or(SceneKind::Free))?;
+    let ended: Vec<&Ramp> = ramps.iter().filter(|r| r.states.last().is_some_and(|s| s.0 != 0.0 && s.0 < t.p_max_kpa * (1.0 - 1e-9))).collect();
+    ended
+        .par_iter()
+        .map(|r| {
+            let (p, q, _) = r.states.last().expect("a ramp with a state");
+            let geom = ActuatorGeometry::new(&r.design, RangePolicy::TableI)?;
+            let mut full = opts.clone();
+            full.rom = None;
+            let sm = SceneModel::build(&geom, &full, r.kind)?;
+            let loads = sm.loads(*p, 0.0);
+            let k = sm.model.assemble(q, &loads, true).map_err(|e| anyhow!("end mode of {} {}: {e}", label(&r.design), r.kind.name()))?.k.ok_or_else(|| anyhow!("no tangent"))?;
+            let f = sm.model.factor(&k).or_else(|_| sm.model.factor_indefinite(&k)).map_err(|e| anyhow!("end mode of {} {}: {e}", label(&r.design), r.kind.name()))?;
+            let phi = f.inverse_iteration(12).map_err(|e| anyhow!("end mode of {} {}: {e}", label(&r.design), r.kind.name()))?;
+            Ok(twistopt_solver::rom::to_frame(&sm.model, t.frame, &reference, &phi)?)
+        })
+        .collect()
 }
 
 /// The ECSW sample of a basis on training ramps (each state on its own design's geometry);
@@ -243,7 +286,11 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
     let basis = bases(opts, t, ramps)?;
     let pod_time_s = t1.elapsed().as_secs_f64();
     let snapshots: usize = ramps.iter().map(|r| r.frame_states.len()).sum();
-    log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snapshots, basis.n, basis.k, basis.frame));
+    let appended = basis.appended_singular_values.len();
+    log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snapshots, basis.n, basis.k - appended, basis.frame));
+    if t.buckling_modes > 0 {
+        log(&format!("  end modes: {} appended (at most {}; their parts outside the POD basis: {:?})", appended, t.buckling_modes, basis.appended_singular_values.iter().map(|s| (s * 1e3).round() / 1e3).collect::<Vec<_>>()));
+    }
     if let Some(pb) = &basis.pressure {
         log(&format!("  pressure POD: {} snapshots of {} coefficients → {} modes", snapshots, pb.psi.len() / pb.kp.max(1), pb.kp));
     }
@@ -284,6 +331,7 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
         pod_time_s,
         ecsw_time_s,
         full_newton_iterations: ramps.iter().map(|r| r.newton_iterations).sum(),
+        buckling_singular_values: basis.appended_singular_values.clone(),
     };
     Ok((Rom::new(basis, fit.sample), report))
 }
@@ -417,7 +465,7 @@ pub fn load(dir: &std::path::Path, opts: &SceneOptions) -> Result<(Rom, Manifest
     };
     let refs = take_f64s(&bytes, &mut at, 3 * m.reference_nodes)?;
     let reference = refs.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let basis = Basis { frame: m.frame, n: m.n, k: m.k, reference, v, singular_values: m.report.singular_values.clone(), pressure };
+    let basis = Basis { frame: m.frame, n: m.n, k: m.k, reference, v, singular_values: m.report.singular_values.clone(), pressure, appended_singular_values: m.report.buckling_singular_values.clone() };
     Ok((Rom::new(basis, m.sample.clone()), m))
 }
 

@@ -823,3 +823,51 @@ fn greedy_enrichment_adds_the_worst_candidate_and_resumes() {
     assert!(basis == basis2, "the resumed enrichment wrote another basis");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A pure-twist design at large α whose full ramp stops before 100 kPa: the end mode is a
+/// finite unit direction, training appends at most `buckling_modes` of them, and the reduced
+/// model trained on that design with them stops where the full one does (within 2 %). (On this
+/// coarse one-design model the states alone already span the mode: the case where the end
+/// modes matter, held-out designs at the sweep preset, is measured in
+/// studies/sweep-table1/rom-k80-pure-twist/README.md.)
+#[test]
+fn end_modes_let_the_reduced_model_stop_where_the_full_one_does() {
+    use twistopt::rom::{end_modes, full_ramp, train_on, TrainOptions};
+    use twistopt::scene::ramp_states;
+    use twistopt_solver::rom::EcswOptions;
+    let o = opts("coarse");
+    let d = Design::new(75f64.sqrt(), 18.0, 282.0);
+    let kind = SceneKind::PureTwist;
+    let full = full_ramp(&d, &o, kind, 100.0, Frame::Cylindrical, &[]).unwrap();
+    let p_full = full.states.last().unwrap().0;
+    assert!(p_full < 100.0, "the full ramp ends before 100 kPa: {p_full}");
+    let base = TrainOptions {
+        designs: 1,
+        scenes: vec![SceneKind::PureTwist, SceneKind::PureTwistBlocked],
+        truncation: Truncation::Modes(24),
+        ecsw: EcswOptions { tau: 0.0, max_elements: 0, tangent_directions: 0, points: false, max_snapshots: 0 },
+        pressure_modes: Some(Truncation::Modes(5)),
+        ..TrainOptions::default()
+    };
+    // the end mode: a unit direction, largely outside the states' span
+    let modes = end_modes(&o, &base, std::slice::from_ref(&full)).unwrap();
+    assert_eq!(modes.len(), 1);
+    assert!(modes[0].iter().all(|v| v.is_finite()));
+    let p_end = |buckling: usize| {
+        let t = TrainOptions { buckling_modes: buckling, ..base.clone() };
+        let (rom, report) = train_on(&o, &t, std::slice::from_ref(&d), |_| {}).unwrap();
+        let added = report.buckling_singular_values.len();
+        assert!(added <= buckling && (buckling == 0 || added >= 1), "{:?}", report.buckling_singular_values);
+        assert_eq!(report.modes, 24 + report.buckling_singular_values.len());
+        let mut ro = o.clone();
+        ro.rom = Some(std::sync::Arc::new(rom));
+        ro.rom_scenes = t.scenes.clone();
+        let g = ActuatorGeometry::new(&d, RangePolicy::TableI).unwrap();
+        let sm = SceneModel::build(&g, &ro, kind).unwrap();
+        let (states, _) = ramp_states(&sm, &ro, 100.0);
+        states.last().unwrap().0
+    };
+    let with = p_end(2);
+    eprintln!("full ramp ends at {p_full:.3} kPa; reduced with end modes at {with:.3} kPa, without at {:.3} kPa", p_end(0));
+    assert!((with - p_full).abs() <= 0.02 * p_full, "reduced with end modes ends at {with} kPa, full at {p_full} kPa");
+}

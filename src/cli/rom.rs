@@ -133,6 +133,12 @@ pub struct TrainArgs {
     /// candidates (27 per element), so it fits on a subset.
     #[arg(long, default_value_t = 0)]
     pub ecsw_snapshots: usize,
+    /// Append at most this many modes from the full tangent's lowest eigenvectors at the ends of
+    /// the training ramps that stop at an instability (a pressure maximum or a bifurcation): the
+    /// buckling directions, which no converged state contains. Without them a reduced model can
+    /// miss a bifurcation and run on to a later pressure maximum (the pure-twist scenes at large α).
+    #[arg(long, default_value_t = 0)]
+    pub buckling_modes: usize,
     /// After training, compare with the full model on this many seeded random designs.
     #[arg(long, default_value_t = 0)]
     pub validate: usize,
@@ -242,6 +248,7 @@ fn train(a: &TrainArgs) -> Result<()> {
         truncation: Truncation::Modes(a.modes),
         ecsw: EcswOptions { tau: a.tau, max_elements: if a.tau > 0.0 { 100_000 } else { 0 }, tangent_directions: 0, points: a.points, max_snapshots: a.ecsw_snapshots },
         pressure_modes: (a.pressure_modes > 0).then_some(Truncation::Modes(a.pressure_modes)),
+        buckling_modes: a.buckling_modes,
         frame: match a.frame.as_str() {
             "cartesian" => twistopt_solver::rom::Frame::Cartesian,
             "piola" => twistopt_solver::rom::Frame::Piola,

@@ -59,6 +59,9 @@ pub struct Ramp {
     /// the elements' pressure coefficients of the loaded states (pressure POD snapshots)
     pub pressure_states: Vec<Vec<f64>>,
     pub newton_iterations: usize,
+    /// the pressure bound it was ramped to (kPa): a ramp whose last state is below it ended at
+    /// a failure of the path (pressure maximum, bifurcation)
+    pub p_max_kpa: f64,
 }
 
 /// What training measured.
@@ -150,7 +153,7 @@ pub fn full_ramp(design: &Design, opts: &SceneOptions, kind: SceneKind, p_max_kp
     let (states, its) = crate::scene::ramp_states(&sm, &full, p_max_kpa);
     let frame_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::to_frame(&sm.model, frame, reference, &s.1)).collect::<Result<_, _>>()?;
     let pressure_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::pressure_snapshot(&sm.model, &s.1, &s.2)).collect::<Result<_, _>>()?;
-    Ok(Ramp { design: design.clone(), kind, states, frame_states, pressure_states, newton_iterations: its })
+    Ok(Ramp { design: design.clone(), kind, states, frame_states, pressure_states, newton_iterations: its, p_max_kpa })
 }
 
 /// The centre of the Table-I box: the reference design of a [`Frame::Piola`] basis.
@@ -499,7 +502,7 @@ fn ramp_path(dir: &std::path::Path, d: usize, kind: SceneKind) -> std::path::Pat
 }
 
 fn write_ramp(path: &std::path::Path, r: &Ramp) -> Result<()> {
-    let header = serde_json::json!({ "design": r.design, "kind": r.kind.name(), "newton_iterations": r.newton_iterations,
+    let header = serde_json::json!({ "design": r.design, "kind": r.kind.name(), "newton_iterations": r.newton_iterations, "p_max_kPa": r.p_max_kpa,
         "states": r.states.iter().map(|s| (s.1.len(), s.2.len())).collect::<Vec<_>>() });
     let mut bytes = serde_json::to_vec(&header)?;
     bytes.push(b'\n');
@@ -517,9 +520,18 @@ fn write_ramp(path: &std::path::Path, r: &Ramp) -> Result<()> {
     Ok(())
 }
 
-/// A cached ramp (None: missing or unreadable, to be recomputed), with its frame and pressure
-/// snapshots recomputed on its design's model.
-fn read_ramp(path: &std::path::Path, opts: &SceneOptions, kind: SceneKind, frame: Frame, reference: &[[f64; 3]]) -> Option<Ramp> {
+/// Whether a cached ramp ramped to `cached_bound` whose last state is at `p_end` is the ramp to
+/// `p_max_kpa`: the same bound, or a path that failed below both.
+fn cached_ramp_serves(cached_bound: f64, p_end: f64, p_max_kpa: f64) -> bool {
+    (cached_bound - p_max_kpa).abs() <= 1e-9 * p_max_kpa.abs().max(1.0) || p_end < cached_bound.min(p_max_kpa) * (1.0 - 1e-9)
+}
+
+/// A cached ramp (None: missing, unreadable, or of another pressure bound, to be recomputed),
+/// with its frame and pressure snapshots recomputed on its design's model. A ramp ramped to
+/// another bound serves only if it ended (by failure) below both bounds: one that stopped at its
+/// bound lacks the states up to a higher one (caches written before the bound was recorded were
+/// ramped to the default 100 kPa).
+fn read_ramp(path: &std::path::Path, opts: &SceneOptions, kind: SceneKind, frame: Frame, reference: &[[f64; 3]], p_max_kpa: f64) -> Option<Ramp> {
     let bytes = std::fs::read(path).ok()?;
     let nl = bytes.iter().position(|&b| b == b'\n')?;
     let h: serde_json::Value = serde_json::from_slice(&bytes[..nl]).ok()?;
@@ -536,13 +548,18 @@ fn read_ramp(path: &std::path::Path, opts: &SceneOptions, kind: SceneKind, frame
     if at != bytes.len() {
         return None;
     }
+    let cached_bound = h["p_max_kPa"].as_f64().unwrap_or(100.0);
+    let p_end = states.last().map(|s| s.0)?;
+    if !cached_ramp_serves(cached_bound, p_end, p_max_kpa) {
+        return None;
+    }
     let geom = ActuatorGeometry::new(&design, RangePolicy::TableI).ok()?;
     let mut full = opts.clone();
     full.rom = None;
     let sm = SceneModel::build(&geom, &full, kind).ok()?;
     let frame_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::to_frame(&sm.model, frame, reference, &s.1)).collect::<Result<_, _>>().ok()?;
     let pressure_states = states.iter().filter(|s| s.0 != 0.0).map(|s| twistopt_solver::rom::pressure_snapshot(&sm.model, &s.1, &s.2)).collect::<Result<_, _>>().ok()?;
-    Some(Ramp { design, kind, states, frame_states, pressure_states, newton_iterations: h["newton_iterations"].as_u64().unwrap_or(0) as usize })
+    Some(Ramp { design, kind, states, frame_states, pressure_states, newton_iterations: h["newton_iterations"].as_u64().unwrap_or(0) as usize, p_max_kpa })
 }
 
 /// [`training_ramps`] with a cache in `dir`/ramps: a ramp already there is read instead of
@@ -560,7 +577,7 @@ fn ramps_in(opts: &SceneOptions, t: &TrainOptions, designs: &[Design], dir: Opti
         .par_iter()
         .filter_map(|&(d, k)| {
             let path = dir.map(|dir| ramp_path(dir, d, k));
-            if let Some(r) = path.as_ref().and_then(|p| read_ramp(p, opts, k, t.frame, &reference)).filter(|r| r.design.values == designs[d].values) {
+            if let Some(r) = path.as_ref().and_then(|p| read_ramp(p, opts, k, t.frame, &reference, t.p_max_kpa)).filter(|r| r.design.values == designs[d].values) {
                 progress(&format!("design {d} {}: cached", k.name()));
                 return Some(r);
             }
@@ -959,4 +976,23 @@ pub fn enrichment_round_record(round: usize, ind: &[(usize, f64)], picks: &[usiz
         "indicator": { "max": finite(q(1.0)), "p90": finite(q(0.9)), "median": finite(q(0.5)), "unanswered": v.iter().filter(|x| !x.is_finite()).count() },
         "added": picks.iter().map(|&i| serde_json::json!({ "candidate": i, "design": candidates[i], "indicator": finite(of(i)) })).collect::<Vec<_>>(),
     })
+}
+
+#[cfg(test)]
+mod cache_tests {
+    use super::cached_ramp_serves;
+
+    #[test]
+    fn a_cached_ramp_serves_another_bound_only_if_it_failed_below_both() {
+        // same bound: always
+        assert!(cached_ramp_serves(100.0, 100.0, 100.0));
+        assert!(cached_ramp_serves(100.0, 64.2, 100.0));
+        // stopped at its bound 100: lacks the states to 150
+        assert!(!cached_ramp_serves(100.0, 100.0, 150.0));
+        // failed at 64 kPa: the same path to any bound above 64
+        assert!(cached_ramp_serves(100.0, 64.0, 150.0));
+        assert!(cached_ramp_serves(150.0, 64.0, 100.0));
+        // failed at 120 under a bound of 150: a ramp to 100 stops at 100, not at 120
+        assert!(!cached_ramp_serves(150.0, 120.0, 100.0));
+    }
 }

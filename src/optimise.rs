@@ -906,20 +906,62 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
     (best.0 / scale, best.1)
 }
 
-/// Space-filling starting points in [0.1, 0.9]ⁿ: the Halton sequence (bases 2, 3, 5, 7, 11, …)
-/// from its second point.
+/// Space-filling starting points in [0.1, 0.9]ⁿ: the Halton sequence from its second point, one
+/// distinct prime base per dimension (2, 3, 5, 7, 11, …, the d-th prime for dimension d).
+///
+/// Plain Halton points in large bases are correlated over the first points (point k is ≈ k/b in
+/// every large base b), so for bases ≥ 11 (dimensions ≥ 4) the digits are scrambled by a fixed
+/// permutation per base (0 kept fixed; deterministic, seeded by the base). Dimensions 0–3 (bases 2,
+/// 3, 5, 7) are the plain sequence, so every problem of ≤ 4 variables (the letter's r, l, α, p and
+/// the reduced models' training designs) keeps the points it always had.
 pub fn starting_points(n: usize, count: usize) -> Vec<Vec<f64>> {
-    const PRIMES: [u32; 12] = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37];
-    let halton = |mut i: u32, b: u32| {
+    let bases = primes(n);
+    let perms: Vec<Vec<u32>> = bases.iter().map(|&b| digit_permutation(b)).collect();
+    let halton = |mut i: u32, b: u32, perm: &[u32]| {
         let (mut f, mut r) = (1.0, 0.0);
         while i > 0 {
             f /= b as f64;
-            r += f * (i % b) as f64;
+            r += f * perm[(i % b) as usize] as f64;
             i /= b;
         }
         r
     };
-    (0..count).map(|k| (0..n).map(|d| 0.1 + 0.8 * halton(k as u32 + 1, PRIMES[d % PRIMES.len()])).collect()).collect()
+    (0..count).map(|k| (0..n).map(|d| 0.1 + 0.8 * halton(k as u32 + 1, bases[d], &perms[d])).collect()).collect()
+}
+
+/// The first n primes.
+fn primes(n: usize) -> Vec<u32> {
+    let mut p: Vec<u32> = Vec::with_capacity(n);
+    let mut c = 2u32;
+    while p.len() < n {
+        if p.iter().take_while(|&&q| q * q <= c).all(|&q| c % q != 0) {
+            p.push(c);
+        }
+        c += 1;
+    }
+    p
+}
+
+/// The digit permutation of base b: the identity for b < 11, else a fixed pseudo-random
+/// permutation of 1..b (Fisher–Yates driven by splitmix64 seeded with b) with 0 kept at 0.
+fn digit_permutation(b: u32) -> Vec<u32> {
+    let mut perm: Vec<u32> = (0..b).collect();
+    if b < 11 {
+        return perm;
+    }
+    let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ b as u64;
+    let mut next = || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    for i in (2..b as usize).rev() {
+        let j = 1 + (next() % i as u64) as usize;
+        perm.swap(i, j);
+    }
+    perm
 }
 
 /// Where a finer stage starts: the previous stage's design, unless this mesh's ramp fails before
@@ -1260,6 +1302,41 @@ mod tests {
         // interior with a non-zero gradient: not stationary
         let e = Evaluation::from_parts(&[0.3, 0.5], -1.0, vec![-2.0, 0.0], vec![-1.0], vec![vec![0.0, 1.0]]);
         assert!((kkt_measure(&e, 2.0).0 - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn starting_points_in_many_dimensions_are_not_repeated_or_correlated() {
+        // dimensions 0–3 are the plain Halton sequence in bases 2, 3, 5, 7 (the points every
+        // ≤ 4-variable problem and the reduced models' training designs always had)
+        let p = starting_points(24, 64);
+        let plain = [0.5, 1.0 / 3.0, 0.2, 1.0 / 7.0];
+        for (d, v) in plain.iter().enumerate() {
+            assert!((p[0][d] - (0.1 + 0.8 * v)).abs() < 1e-15);
+        }
+        assert!((p[1][0] - (0.1 + 0.8 * 0.25)).abs() < 1e-15 && (p[1][1] - (0.1 + 0.8 * 2.0 / 3.0)).abs() < 1e-15);
+        let col = |d: usize| p.iter().map(|x| x[d]).collect::<Vec<f64>>();
+        let corr = |a: &[f64], b: &[f64]| {
+            let m = a.len() as f64;
+            let (ma, mb) = (a.iter().sum::<f64>() / m, b.iter().sum::<f64>() / m);
+            let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+            let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+            let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+            cov / (va * vb).sqrt()
+        };
+        let mut worst: f64 = 0.0;
+        for d in 0..24 {
+            let a = col(d);
+            assert!(a.iter().all(|v| (0.1..0.9).contains(v)), "dimension {d} leaves [0.1, 0.9]");
+            // every dimension spreads over the interval: both halves hit
+            assert!(a.iter().any(|&v| v < 0.4) && a.iter().any(|&v| v > 0.6), "dimension {d} does not spread");
+            for e in 0..d {
+                let b = col(e);
+                assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-9), "dimensions {d} and {e} repeat");
+                worst = worst.max(corr(&a, &b).abs());
+            }
+        }
+        // the unscrambled sequence has |correlation| ≈ 1.0 between bases 67 and 71 over 64 points
+        assert!(worst < 0.5, "largest |correlation| between two dimensions: {worst}");
     }
 
     #[test]

@@ -354,7 +354,13 @@ pub struct SweepConfig {
     /// `sweep.warm_start`: each design's positive ramps start from its predecessor's states
     /// along the grid's last axis ([`crate::scene::WarmStart`])
     pub warm_start: bool,
+    /// what the user should know before the run (printed by the CLI)
+    pub warnings: Vec<String>,
 }
+
+/// Why warm starts are not to be trusted in the pure-twist scenes (measured on the r = 5√3
+/// slice: studies/sweep-table1/rom-k80-pure-twist/end-modes-enrichment/slice-warm).
+const PURE_TWIST_WARM_WARNING: &str = "sweep.warm_start with the pure-twist scenes: a warm start begins 1 % below where the previous design's path ended and cannot see a pressure maximum the new design has below that; in the pure-twist mode the path then ends at a later maximum (measured: the r = 5√3 slice's 20 best designs 26-140 % too high warm, -9 to +35 % cold against full order). Set sweep.warm_start = false for this mode";
 
 /// The problem file's text → (problem without `[sweep]`, the `[sweep]` table if any), with
 /// `--set` overrides applied (they may address `sweep.*` too). A missing `[design]` (or missing
@@ -419,7 +425,11 @@ impl SweepConfig {
         if warm_start {
             shard.block = grid.axes.last().map_or(1, |a| a.values.len().max(1)) as u64;
         }
-        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None, warm_start })
+        let mut warnings = Vec::new();
+        if warm_start && v.scenes.iter().any(|k| matches!(k, SceneKind::PureTwist | SceneKind::PureTwistBlocked)) {
+            warnings.push(PURE_TWIST_WARM_WARNING.to_string());
+        }
+        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None, warm_start, warnings })
     }
 
     /// Restrict the sweep to these grid indices (sorted and de-duplicated; each must be below
@@ -1586,6 +1596,20 @@ mod tests {
         let (problem, section) = problem_from_str("[load]\npressures_kPa = [10]\n[sweep]\ngrid = \"table1\"\n", "t", &[]).unwrap();
         let e = SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap_err().to_string();
         assert!(e.contains("load.p_max_kPa"), "{e}");
+    }
+
+    #[test]
+    fn warm_starts_in_the_pure_twist_scenes_are_warned_about() {
+        let cfg = |scenes: &str, warm: bool| {
+            let text = format!("[load]\np_max_kPa = 10\n[fidelity]\nmesh = \"12x4x1\"\n[scenes]\nrun = {scenes}\n[sweep]\nr_mm = [10.0]\nl_mm = [12]\nalpha_deg = [60, 90]\nwarm_start = {warm}\n");
+            let (problem, section) = problem_from_str(&text, "t", &[]).unwrap();
+            SweepConfig::new(problem, section.as_ref(), None, Shard::default()).unwrap()
+        };
+        let pt = cfg("[\"pure-twist\", \"pure-twist-blocked\"]", true);
+        assert_eq!(pt.warnings.len(), 1);
+        assert!(pt.warnings[0].contains("sweep.warm_start = false"), "{}", pt.warnings[0]);
+        assert!(cfg("[\"pure-twist\", \"pure-twist-blocked\"]", false).warnings.is_empty());
+        assert!(cfg("[\"free\", \"blocked\"]", true).warnings.is_empty());
     }
 
     #[test]

@@ -100,6 +100,9 @@ pub fn parse_indices(spec: &str) -> Result<Vec<u64>> {
 
 pub fn run(args: &SweepArgs) -> Result<()> {
     let cfg = config(args)?;
+    for w in &cfg.warnings {
+        eprintln!("warning: {w}");
+    }
     if args.count {
         println!("grid {}: {} designs ({}); shard {}/{}: {} designs", cfg.grid.name, cfg.grid.len(), cfg.grid.shape(), cfg.shard.index, cfg.shard.count, cfg.size());
         for a in &cfg.grid.axes {

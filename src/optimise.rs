@@ -277,7 +277,8 @@ impl OptProblem {
         self.variables.len()
     }
 
-    fn unscale(&self, x: &[f64]) -> BTreeMap<String, f64> {
+    /// The design parameters and p by name at scaled variables x (the fixed ones included).
+    pub fn unscale(&self, x: &[f64]) -> BTreeMap<String, f64> {
         let mut d = self.fixed.clone();
         for (v, xi) in self.variables.iter().zip(x) {
             d.insert(v.name.clone(), v.lower + xi.clamp(0.0, 1.0) * (v.upper - v.lower));
@@ -288,11 +289,41 @@ impl OptProblem {
     fn constraint_names(&self) -> Vec<String> {
         let mut c: Vec<String> = self.scenes.iter().map(|k| format!("radius:{}", k.name())).collect();
         c.push("stability".into());
+        if self.envelope() {
+            c.extend(envelope_heights().into_iter().map(|z| format!("envelope:z={z:.1}")));
+        }
         c
     }
 
     pub fn n_constraints(&self) -> usize {
-        self.scenes.len() + 1
+        self.scenes.len() + 1 + if self.envelope() { ENVELOPE_POINTS } else { 0 }
+    }
+
+    /// The envelope constraints (ρ(z) − R)/scale ≤ 0 at [`envelope_heights`] and their
+    /// Jacobian in the scaled variables (from the dual actuators).
+    fn envelope_of(&self, geom: &ActuatorGeometry) -> (Vec<f64>, Vec<Vec<f64>>) {
+        let duals: Vec<Option<crate::geometry::Actuator<num_dual::Dual64>>> = self.variables.iter().map(|v| if v.name == P_PRESSURE { None } else { geom.dual_actuator(&v.name).ok() }).collect();
+        envelope_heights()
+            .into_iter()
+            .map(|z| {
+                let g = (geom.act.profile.eval(z).rho - R_TUBE) / ENVELOPE_SCALE_MM;
+                let row = self.variables.iter().zip(&duals).map(|(v, a)| a.as_ref().map_or(0.0, |a| a.profile.eval(num_dual::Dual64::from(z)).rho.eps) * (v.upper - v.lower) / ENVELOPE_SCALE_MM).collect();
+                (g, row)
+            })
+            .unzip()
+    }
+
+    /// [`OptProblem::envelope_of`] at scaled variables x (None where the geometry cannot be built).
+    pub fn envelope_constraints(&self, x: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+        let design = self.unscale(x);
+        let d = crate::geometry::Design { values: design.into_iter().filter(|(k, _)| k.as_str() != P_PRESSURE).collect(), variant: self.variant };
+        let geom = ActuatorGeometry::new(&d, self.policy).ok()?;
+        Some(self.envelope_of(&geom))
+    }
+
+    /// Whether the rest radius is a constraint: a freeform profile mode is a variable.
+    fn envelope(&self) -> bool {
+        self.variables.iter().any(|v| matches!(crate::geometry::freeform::parse_param(&v.name), Some((crate::geometry::freeform::ModeKind::Profile, _))))
     }
 
     /// The problem of each fidelity stage (the problem itself when it has no stages).
@@ -433,7 +464,7 @@ impl OptProblem {
             }
         }
         // stability: p ≤ (1 − margin) · p_lim, p_lim = the lowest pressure maximum of the scenes
-        let ms = m - 1;
+        let ms = self.scenes.len();
         let lim = dg.scenes.values().filter_map(|s| s.p_limit_kpa.map(|pl| (pl, &s.p_limit_gradient))).min_by(|a, b| a.0.total_cmp(&b.0));
         match lim {
             Some((pl, grad)) => {
@@ -451,6 +482,14 @@ impl OptProblem {
                 if let Some(i) = pi {
                     ev.dg[ms][i] = if LIMIT_WINDOW * p < pmax { 1.0 - LIMIT_WINDOW } else { 1.0 };
                 }
+            }
+        }
+        if self.envelope() {
+            let (g, dg) = self.envelope_of(&geom);
+            let j0 = self.scenes.len() + 1;
+            ev.g[j0..].copy_from_slice(&g);
+            for (row, d) in ev.dg[j0..].iter_mut().zip(dg) {
+                *row = d;
             }
         }
         if !all_ok {
@@ -906,6 +945,19 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
     (best.0 / scale, best.1)
 }
 
+/// Heights at which a freeform profile is held inside the envelope, ρ(z) ≤ R (one constraint
+/// each, with its gradient by dual numbers): the ends keep ρ = R by construction, and the
+/// geometry refuses ρ more than [`crate::geometry::ENVELOPE_SLACK_MM`] beyond R, so that a step
+/// across the constraint can still be evaluated.
+pub const ENVELOPE_POINTS: usize = 19;
+/// The envelope constraints' scale: (ρ − R)/scale ≤ 0 (mm).
+const ENVELOPE_SCALE_MM: f64 = 2.0;
+
+/// The interior heights of the envelope constraints (mm).
+pub fn envelope_heights() -> Vec<f64> {
+    (1..=ENVELOPE_POINTS).map(|i| crate::geometry::L_TUBE * i as f64 / (ENVELOPE_POINTS + 1) as f64).collect()
+}
+
 /// Space-filling starting points in [0.1, 0.9]ⁿ: the Halton sequence from its second point, one
 /// distinct prime base per dimension (2, 3, 5, 7, 11, …, the d-th prime for dimension d).
 ///
@@ -927,6 +979,32 @@ pub fn starting_points(n: usize, count: usize) -> Vec<Vec<f64>> {
         r
     };
     (0..count).map(|k| (0..n).map(|d| 0.1 + 0.8 * halton(k as u32 + 1, bases[d], &perms[d])).collect()).collect()
+}
+
+/// The starts of a problem: the [design] itself first when `from_design`, then space-filling
+/// points ([`starting_points`]) contracted towards it by `spread` (x = x_d + spread (h − x_d), in
+/// scaled variables; spread = 1 gives the Halton points themselves).
+pub fn problem_starting_points(op: &OptProblem, count: usize, from_design: bool, spread: f64, p_start: Option<f64>) -> Vec<Vec<f64>> {
+    let xd: Vec<f64> = op
+        .variables
+        .iter()
+        .map(|v| {
+            let x = if v.name == P_PRESSURE { p_start } else { None }.or_else(|| op.fixed.get(&v.name).copied())
+                // an optional parameter the design does not carry: its absent value (0)
+                .or_else(|| crate::geometry::DesignSpace::optional().get(&v.name).map(|_| 0.0))
+                .unwrap_or(v.upper);
+            ((x - v.lower) / (v.upper - v.lower)).clamp(0.0, 1.0)
+        })
+        .collect();
+    let mut out = Vec::with_capacity(count);
+    if from_design && count > 0 {
+        out.push(xd.clone());
+    }
+    let rest = count - out.len();
+    for h in starting_points(op.n(), rest) {
+        out.push(h.iter().zip(&xd).map(|(h, d)| if spread == 1.0 { *h } else { d + spread * (h - d) }).collect());
+    }
+    out
 }
 
 /// The first n primes.
@@ -1143,6 +1221,14 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
     }
     if !(1..=64).contains(&sec.starts) {
         bail!("optimise.starts = {} must be between 1 and 64", sec.starts);
+    }
+    if !(sec.start_spread > 0.0 && sec.start_spread <= 1.0) {
+        bail!("optimise.start_spread = {} must be in (0, 1]", sec.start_spread);
+    }
+    if let Some(p) = sec.start_p_kpa {
+        if !(p >= sec.p_min_kpa && p <= p_max) {
+            bail!("optimise.start_p_kPa = {p} must be within [optimise.p_min_kPa, load.p_max_kPa] = [{}, {p_max}]", sec.p_min_kpa);
+        }
     }
     if !(2..=10_000).contains(&sec.max_evaluations) {
         bail!("optimise.max_evaluations = {} must be between 2 and 10000", sec.max_evaluations);

@@ -15,6 +15,13 @@
 //! # end_tangent_deg = 0.0       # optional design parameter: the lateral profile's end-tangent
 //!                               # angle from the vertical (absent = the spec's vertical ends)
 //!
+//! [design.shape]                # optional: freeform modes on top of (r, l, α) (absent = 0 = the
+//!                               # letter's shape; geometry/freeform.rs)
+//! # twist_1_deg = 10.0          # twist_k_deg, k = 1…8: coefficient of sin(kπz/L) added to the
+//!                               # linear pre-twist αz/L (end-to-end twist stays α), ±90°
+//! # profile_1_mm = -1.0         # profile_k_mm, k = 1…10: coefficient of sin²(πz/L)cos((k−1)πz/L)
+//!                               # added to the bellows radius ρ(z) (ends unchanged), ±5 mm
+//!
 //! [material]                    # optional; Neo-Hookean
 //! mu_MPa = 0.34                 # shear modulus (default 0.34, the letter's Hei-Cast 8400)
 //! kappa_over_mu = 300           # bulk / shear modulus (default scene::DEFAULT_KAPPA_OVER_MU = 300:
@@ -101,9 +108,20 @@ pub struct OptimiseSection {
     /// any of `mma`, `slsqp` (nlopt; cargo feature `nlopt`) and `sqp` (pure Rust, clarabel QPs)
     #[serde(default = "default_optimisers")]
     pub optimisers: Vec<String>,
-    /// number of space-filling starting designs
+    /// number of starting designs (space-filling, see `start_from_design`, `start_spread`)
     #[serde(default = "default_starts")]
     pub starts: usize,
+    /// the first start is the [design] itself (its values of the variables; p at load.p_max_kPa
+    /// when p_kPa is a variable), the others space-filling
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub start_from_design: bool,
+    /// the pressure of that start when p_kPa is a variable (default load.p_max_kPa)
+    #[serde(rename = "start_p_kPa", default, skip_serializing_if = "Option::is_none")]
+    pub start_p_kpa: Option<f64>,
+    /// the space-filling starts fill this fraction of the box around the [design] (1: the whole
+    /// box; e.g. 0.2 for many freeform modes, where most of the box is not a valid geometry)
+    #[serde(default = "default_start_spread", skip_serializing_if = "is_one")]
+    pub start_spread: f64,
     /// FE design evaluations per optimiser run (each = every scene's forward solve + adjoint)
     #[serde(default = "default_max_evaluations")]
     pub max_evaluations: usize,
@@ -159,6 +177,12 @@ fn default_optimisers() -> Vec<String> {
 fn default_starts() -> usize {
     3
 }
+fn default_start_spread() -> f64 {
+    1.0
+}
+fn is_one(x: &f64) -> bool {
+    *x == 1.0
+}
 fn default_max_evaluations() -> usize {
     100
 }
@@ -195,12 +219,17 @@ pub struct DesignSection {
     /// optional design parameter: the profile's end-tangent angle (degrees)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub end_tangent_deg: Option<f64>,
+    /// freeform shape parameters by name (`[design.shape]`: twist_k_deg, profile_k_mm; absent =
+    /// 0 = the letter's shape)
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub shape: std::collections::BTreeMap<String, f64>,
 }
 
 impl DesignSection {
     /// The design (parameters and variant) of this section.
     pub fn design(&self) -> Design {
-        let d = Design::new(self.r_mm, self.l_mm, self.alpha_deg).with_variant(self.variant);
+        let mut d = Design::new(self.r_mm, self.l_mm, self.alpha_deg).with_variant(self.variant);
+        d.values.extend(self.shape.iter().map(|(k, v)| (k.clone(), *v)));
         match self.end_tangent_deg {
             Some(g) => d.with_end_tangent(g),
             None => d,
@@ -380,10 +409,21 @@ impl Problem {
             RangeName::Table1 => RangePolicy::TableI,
             RangeName::Extended => RangePolicy::Extended,
         };
+        for k in d.shape.keys() {
+            if crate::geometry::freeform::parse_param(k).is_none() {
+                let known: Vec<String> = crate::geometry::DesignSpace::freeform().params.into_iter().skip(3).map(|p| p.name).collect();
+                bail!("design.shape.{k}: unknown freeform shape parameter (known: {})", known.join(", "));
+            }
+        }
         let geometry = ActuatorGeometry::new(&d.design(), policy).map_err(|e| {
             // the geometry's hint names the CLI flag of `geometry`; here the switch is design.range
             let msg = e.to_string().replace("pass --extended-range / RangePolicy::Extended", "set design.range = \"extended\"");
-            anyhow!("design.{msg}")
+            let shape = msg.split([' ', ':']).next().is_some_and(|w| w.starts_with("twist_") || w.starts_with("profile_"));
+            if shape {
+                anyhow!("design.shape.{msg}")
+            } else {
+                anyhow!("design.{msg}")
+            }
         })?;
         let m = &self.material;
         let material: Material = NeoHookean::with_ratio(m.mu_mpa, m.kappa_over_mu)
@@ -644,6 +684,24 @@ mod tests {
             Ok(()) => panic!("expected an error for {text:?} {sets:?}"),
             Err(e) => format!("{e:#}"),
         }
+    }
+
+    #[test]
+    fn freeform_shape_table() {
+        let p = Problem::from_str_with(BASE, "t", &["design.shape={twist_2_deg = -10.0, profile_1_mm = 0.5}".into()]).unwrap();
+        let v = p.validate().unwrap();
+        assert_eq!(v.geometry.design.get("twist_2_deg").unwrap(), -10.0);
+        assert_eq!(v.geometry.design.get("profile_1_mm").unwrap(), 0.5);
+        assert!(v.geometry.act.is_freeform());
+        assert!(v.geometry.design.parameter_names().contains(&"profile_1_mm".to_string()));
+        // the echo keeps the table
+        assert!(toml::to_string(&p).unwrap().contains("twist_2_deg"));
+        let e = err(BASE, &["design.shape={twist_9_deg = 1.0}"]);
+        assert!(e.starts_with("design.shape.twist_9_deg: unknown freeform") && e.contains("twist_8_deg"), "{e}");
+        let e = err(BASE, &["design.shape={twist_1_deg = 120.0}"]);
+        assert!(e.starts_with("design.shape.twist_1_deg = 120") && e.contains("[-90, 90] deg"), "{e}");
+        let e = err(BASE, &["design.shape={profile_1_mm = 5.0}", "design.l_mm=18"]);
+        assert!(e.starts_with("design.shape.profile_*_mm:") && e.contains("exceeds the tube radius"), "{e}");
     }
 
     #[test]

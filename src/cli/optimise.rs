@@ -8,7 +8,7 @@ use clap::Args;
 use serde_json::{json, Value};
 
 use crate::evaluate::write_json_atomic;
-use crate::optimise::{all_runs, build_problem, run_name, starting_points, Objective, RunResult, FEAS_TOL};
+use crate::optimise::{all_runs, build_problem, run_name, problem_starting_points, Objective, RunResult, FEAS_TOL};
 use crate::plot::{line_plot, LinePlot, Series};
 use crate::problem::Problem;
 
@@ -106,7 +106,7 @@ pub fn run(args: &OptimiseArgs) -> Result<()> {
     if map.is_some() && !(op.variables.iter().any(|x| x.name == "alpha_deg") && op.variables.iter().any(|x| x.name == "l_mm")) {
         anyhow::bail!("--map needs alpha_deg and l_mm among optimise.variables");
     }
-    let starts = starting_points(op.n(), sec.starts);
+    let starts = problem_starting_points(&op, sec.starts, sec.start_from_design, sec.start_spread, sec.start_p_kpa);
     let selection = Selection { start: args.start, optimiser: args.optimiser.clone() };
     if let Some(i) = selection.start {
         if i >= starts.len() {

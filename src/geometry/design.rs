@@ -75,15 +75,41 @@ impl DesignSpace {
     /// value). `min`/`max` are the box they are validated against (the end tangent is also
     /// limited by the profile's existence at the design's l, see [`super::Profile::check`]).
     pub fn optional() -> Self {
-        DesignSpace {
-            params: vec![ParamSpec {
-                name: P_END_TANGENT.into(),
+        use super::freeform::{profile_param, twist_param, N_PROFILE_MODES, N_TWIST_MODES, PROFILE_MODE_MAX_MM, TWIST_MODE_MAX_DEG};
+        let mut params = vec![ParamSpec {
+            name: P_END_TANGENT.into(),
+            unit: "deg".into(),
+            description: "end-tangent angle of the lateral profile from the vertical (0 = the spec's vertical ends, > 0 leaning towards the axis)".into(),
+            min: -30.0,
+            max: 60.0,
+        }];
+        for k in 1..=N_TWIST_MODES {
+            params.push(ParamSpec {
+                name: twist_param(k),
                 unit: "deg".into(),
-                description: "end-tangent angle of the lateral profile from the vertical (0 = the spec's vertical ends, > 0 leaning towards the axis)".into(),
-                min: -30.0,
-                max: 60.0,
-            }],
+                description: format!("freeform twist law: coefficient of sin({k}πz/L) added to the linear pre-twist αz/L (the end-to-end twist stays α)"),
+                min: -TWIST_MODE_MAX_DEG,
+                max: TWIST_MODE_MAX_DEG,
+            });
         }
+        for k in 1..=N_PROFILE_MODES {
+            params.push(ParamSpec {
+                name: profile_param(k),
+                unit: "mm".into(),
+                description: format!("freeform lateral profile: coefficient of sin²(πz/L)·cos({}πz/L) added to the bellows radius ρ(z) (value and slope zero at both ends)", k - 1),
+                min: -PROFILE_MODE_MAX_MM,
+                max: PROFILE_MODE_MAX_MM,
+            });
+        }
+        DesignSpace { params }
+    }
+
+    /// The freeform design space: Table I's three parameters and every freeform mode (the
+    /// letter's family is its subspace where the modes are zero).
+    pub fn freeform() -> Self {
+        let mut s = Self::actuator();
+        s.params.extend(Self::optional().params.into_iter().filter(|p| super::freeform::parse_param(&p.name).is_some()));
+        s
     }
 
     /// A parameter of the actuator space or of the optional space, by name.
@@ -266,6 +292,30 @@ impl Design {
         self
     }
 
+    /// The freeform twist-law coefficients (degrees, absent ones 0), if the design carries any.
+    pub fn twist_modes_deg(&self) -> Option<[f64; super::freeform::N_TWIST_MODES]> {
+        self.modes(super::freeform::ModeKind::Twist)
+    }
+
+    /// The freeform profile coefficients (mm, absent ones 0), if the design carries any.
+    pub fn profile_modes_mm(&self) -> Option<[f64; super::freeform::N_PROFILE_MODES]> {
+        self.modes(super::freeform::ModeKind::Profile)
+    }
+
+    fn modes<const N: usize>(&self, kind: super::freeform::ModeKind) -> Option<[f64; N]> {
+        let mut out = [0.0; N];
+        let mut any = false;
+        for (name, v) in &self.values {
+            if let Some((k, i)) = super::freeform::parse_param(name) {
+                if k == kind && i < N {
+                    out[i] = *v;
+                    any = true;
+                }
+            }
+        }
+        any.then_some(out)
+    }
+
     /// The end-tangent angle (degrees) if the design carries it.
     pub fn end_tangent_deg(&self) -> Option<f64> {
         self.values.get(P_END_TANGENT).copied()
@@ -301,8 +351,8 @@ impl Design {
         if let Some(v) = self.values.get(name) {
             return Ok(*v);
         }
-        if name == P_END_TANGENT {
-            // absent optional parameter: the spec's value
+        if DesignSpace::optional().get(name).is_some() {
+            // absent optional parameter: the spec's value (0 for every one of them)
             return Ok(0.0);
         }
         Err(GeometryError::MissingParameter { name: name.to_string(), known: DesignSpace::actuator().names().join(", ") })
@@ -337,14 +387,14 @@ impl Design {
                 return Err(GeometryError::UnknownParameter { name: k.clone(), known: known_names() });
             }
         }
-        if let Some(g) = self.end_tangent_deg() {
-            let p = DesignSpace::optional().get(P_END_TANGENT).expect("optional parameter").clone();
+        for p in DesignSpace::optional().params {
+            let Some(&g) = self.values.get(&p.name) else { continue };
             let range = range_text(p.min, p.max, &p.unit);
             if !g.is_finite() {
-                return Err(GeometryError::NotFinite { name: P_END_TANGENT.into(), value: g, range });
+                return Err(GeometryError::NotFinite { name: p.name, value: g, range });
             }
             if g < p.min || g > p.max {
-                return Err(GeometryError::OutOfRange { name: P_END_TANGENT.into(), value: g, range, hint: String::new() });
+                return Err(GeometryError::OutOfRange { name: p.name, value: g, range, hint: String::new() });
             }
         }
         if !self.variant.is_spec() && self.variant.section != SectionReading::Triangle && policy == RangePolicy::Extended {

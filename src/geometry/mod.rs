@@ -15,6 +15,7 @@
 //! lobe 0, the point (T, 0) of the construction frame.
 
 pub mod design;
+pub mod freeform;
 pub mod scalar;
 pub mod variant;
 pub mod volume;
@@ -235,6 +236,9 @@ pub struct Profile<D> {
     pub z_junction: D,
     /// arc length of each end arc (length/4 for the spec)
     pub end_length: D,
+    /// freeform profile modes' coefficients (mm) added to the arcs' radius
+    /// ([`freeform::profile_offset`]); None = the spec's three arcs (their own code path)
+    pub bumps: Option<[D; freeform::N_PROFILE_MODES]>,
 }
 
 /// Value and derivatives of the profile at one height.
@@ -262,7 +266,7 @@ impl<D: Scalar> Profile<D> {
         } else {
             (delta * delta + L_TUBE * L_TUBE / 4.0) * beta / delta
         };
-        Profile { l, delta, kappa_a, beta, length, gamma: None, z_junction: cst(L_TUBE / 4.0), end_length: length * 0.25 }
+        Profile { l, delta, kappa_a, beta, length, gamma: None, z_junction: cst(L_TUBE / 4.0), end_length: length * 0.25, bumps: None }
     }
 
     /// The three-arc profile (ρ = R at both ends, waist ρ = l at z = L/2, mirror-symmetric about
@@ -290,7 +294,7 @@ impl<D: Scalar> Profile<D> {
             let beta = atan2(kappa_a * (L_TUBE / 4.0) + sg * 0.5, (cg + 1.0 - kappa_a * delta) * 0.5);
             (zj, beta, (beta - gamma) / kappa_a, beta * 2.0 / kappa_a)
         };
-        Profile { l, delta, kappa_a, beta, length: end_length * 2.0 + mid_length, gamma: Some(gamma), z_junction, end_length }
+        Profile { l, delta, kappa_a, beta, length: end_length * 2.0 + mid_length, gamma: Some(gamma), z_junction, end_length, bumps: None }
     }
 
     /// Whether the profile exists as three arcs of one radius, convex–concave–convex: with an end
@@ -320,8 +324,27 @@ impl<D: Scalar> Profile<D> {
         self.kappa_a.recip()
     }
 
-    /// ρ(z), ρ'(z), ρ''(z). z outside [0, L] is clamped to the nearest end arc formula.
+    /// The same profile with freeform modes added (coefficients in mm; None = none).
+    pub fn with_bumps(mut self, bumps: Option<[D; freeform::N_PROFILE_MODES]>) -> Self {
+        self.bumps = bumps;
+        self
+    }
+
+    /// ρ(z), ρ'(z), ρ''(z) (with the freeform modes, if any). z outside [0, L] is clamped to
+    /// the nearest end arc formula.
     pub fn eval(&self, z: D) -> ProfileValue<D> {
+        let v = self.eval_arcs(z);
+        match &self.bumps {
+            None => v,
+            Some(b) => {
+                let (d, dd, d2) = freeform::profile_offset(b, z);
+                ProfileValue { rho: v.rho + d, drho: v.drho + dd, d2rho: v.d2rho + d2 }
+            }
+        }
+    }
+
+    /// The three arcs' ρ(z), ρ'(z), ρ''(z) (without freeform modes).
+    fn eval_arcs(&self, z: D) -> ProfileValue<D> {
         let k = self.kappa_a;
         let zr = z.re();
         let one = cst::<D>(1.0);
@@ -365,6 +388,15 @@ impl<D: Scalar> Profile<D> {
     /// With an end tangent the arc length is uniform on each arc, with the junctions still at
     /// ζ = 1/4, 3/4 (for γ = 0 this is the uniform arc length of the spec).
     pub fn at_arclength(&self, zeta: f64) -> (D, D) {
+        let (z, rho) = self.at_arclength_arcs(zeta);
+        match &self.bumps {
+            None => (z, rho),
+            // (the arc length of the three arcs: the freeform modes move ρ, not the rings' z)
+            Some(b) => (z, rho + freeform::profile_offset(b, z).0),
+        }
+    }
+
+    fn at_arclength_arcs(&self, zeta: f64) -> (D, D) {
         if let Some(g) = self.gamma {
             let (sg, cg) = g.sin_cos();
             // end arc from an end plane: arc length s, turned angle θ = κs:
@@ -411,6 +443,9 @@ pub struct Actuator<D> {
     pub alpha: D,
     /// the reading of the geometry (default: the spec)
     pub variant: GeometryVariant,
+    /// freeform twist-law modes' coefficients (radians, [`freeform::twist_offset`]); None = the
+    /// spec's linear twist (its own code path)
+    pub twist_modes: Option<[D; freeform::N_TWIST_MODES]>,
 }
 
 /// Outer-surface data at one (ŝ, z).
@@ -430,7 +465,7 @@ impl<D: Scalar> Actuator<D> {
     /// Geometry from raw parameters (r, l in mm, α in **radians**). No validation: use
     /// [`ActuatorGeometry::new`] for checked construction.
     pub fn new(r: D, l: D, alpha_rad: D) -> Self {
-        Actuator { section: Section::new(r), profile: Profile::new(l), alpha: alpha_rad, variant: GeometryVariant::default() }
+        Actuator { section: Section::new(r), profile: Profile::new(l), alpha: alpha_rad, variant: GeometryVariant::default(), twist_modes: None }
     }
 
     /// Geometry of a [`GeometryVariant`] with an optional end-tangent angle γ of the profile
@@ -440,7 +475,33 @@ impl<D: Scalar> Actuator<D> {
             None => Profile::new(l),
             Some(g) => Profile::with_end_tangent(l, g),
         };
-        Actuator { section: Section::with_reading(r, variant.section), profile, alpha: alpha_rad, variant }
+        Actuator { section: Section::with_reading(r, variant.section), profile, alpha: alpha_rad, variant, twist_modes: None }
+    }
+
+    /// The same actuator with freeform modes: twist-law coefficients (radians) and profile
+    /// coefficients (mm); None = the spec's linear twist / three-arc profile.
+    pub fn with_freeform(mut self, twist: Option<[D; freeform::N_TWIST_MODES]>, profile: Option<[D; freeform::N_PROFILE_MODES]>) -> Self {
+        self.twist_modes = twist;
+        self.profile = self.profile.with_bumps(profile);
+        self
+    }
+
+    /// Whether the actuator carries freeform modes.
+    pub fn is_freeform(&self) -> bool {
+        self.twist_modes.is_some() || self.profile.bumps.is_some()
+    }
+
+    /// The twist angle φ(z) (radians) and φ'(z): αz/L for the spec, plus the freeform modes.
+    pub fn twist_angle(&self, z: D) -> (D, D) {
+        let lin = self.alpha * z * (1.0 / L_TUBE);
+        let rate = self.alpha * (1.0 / L_TUBE);
+        match &self.twist_modes {
+            None => (lin, rate),
+            Some(a) => {
+                let (v, dv) = freeform::twist_offset(a, z);
+                (lin + v, rate + dv)
+            }
+        }
     }
 
     /// The same actuator over nested dual numbers (derivative part zero), for partial derivatives
@@ -448,7 +509,7 @@ impl<D: Scalar> Actuator<D> {
     pub fn lift(&self) -> Actuator<Dual<D>> {
         let z = D::zero();
         let lift = |x: D| Dual::new(x, z);
-        Actuator::with_variant(lift(self.section.r), lift(self.profile.l), lift(self.alpha), self.profile.gamma.map(lift), self.variant)
+        Actuator::with_variant(lift(self.section.r), lift(self.profile.l), lift(self.alpha), self.profile.gamma.map(lift), self.variant).with_freeform(self.twist_modes.map(|a| a.map(lift)), self.profile.bumps.map(|b| b.map(lift)))
     }
 
     /// Whether the wall must be trimmed by the end planes: the offset direction is not horizontal
@@ -494,9 +555,9 @@ impl<D: Scalar> Actuator<D> {
         }
     }
 
-    /// Twist Tw: rotation about +z by α·z/L, applied last.
+    /// Twist Tw: rotation about +z by α·z/L (φ(z) with freeform modes), applied last.
     pub fn twist(&self, p: [D; 3]) -> [D; 3] {
-        let ang = self.alpha * p[2] * (1.0 / L_TUBE);
+        let ang = self.twist_angle(p[2]).0;
         let (s, c) = ang.sin_cos();
         [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]]
     }
@@ -509,9 +570,9 @@ impl<D: Scalar> Actuator<D> {
         let it = self.section.t_max.recip();
         let lam = prof.rho * it;
         let dlam = prof.drho * it;
-        let q = dlam * sec.p - lam * self.alpha * (1.0 / L_TUBE) * dot2(sec.c, sec.tau);
+        let (ang, rate) = self.twist_angle(z);
+        let q = dlam * sec.p - lam * rate * dot2(sec.c, sec.tau);
         let iw = (q * q + 1.0).sqrt().recip();
-        let ang = self.alpha * z * (1.0 / L_TUBE);
         let (sn, cs) = ang.sin_cos();
         let c = rot2([lam * sec.c[0], lam * sec.c[1]], cs, sn);
         let nu = rot2(sec.nu, cs, sn);
@@ -614,7 +675,7 @@ impl<D: Scalar> Actuator<D> {
     /// Outer point in polar form S(φ, z) = (λ ρsec(φ − αz/L) cos φ, …, z) (§2.4).
     pub fn outer_point_polar(&self, phi: D, z: D) -> [D; 3] {
         let (lam, _, _) = self.lambda(z);
-        let rs = self.section.polar_radius(phi - self.alpha * z * (1.0 / L_TUBE)) * lam;
+        let rs = self.section.polar_radius(phi - self.twist_angle(z).0) * lam;
         let (s, c) = phi.sin_cos();
         [rs * c, rs * s, z]
     }
@@ -646,6 +707,59 @@ impl<D: Scalar> Actuator<D> {
         let k2 = (-b - disc) / (a * 2.0);
         (k1, k2)
     }
+}
+
+/// How far beyond the tube radius R a freeform profile may still be built (mm): the envelope
+/// ρ ≤ R is a design constraint (the optimiser's `envelope:*` constraints, with gradients), so a
+/// design just across it must still be evaluable; beyond this it is refused.
+pub const ENVELOPE_SLACK_MM: f64 = 1.0;
+
+/// Samples in z of [`freeform_validity`]'s checks.
+const FREEFORM_CHECK_SAMPLES: usize = 401;
+
+/// The validity of a freeform design's surface, each a condition with a margin, checked on a
+/// sample of heights: the rest radius stays within R + [`ENVELOPE_SLACK_MM`], the waist conditions of
+/// [`l_min_waist`] hold at the smallest ρ (the lobe necks' offset walls stay ≥ 1 mm apart and
+/// off the axis), and every convex principal radius of the outer surface is ≥ t + 0.5 mm (the
+/// inward offset does not fold, as for the extended range). The twist modes change none of these
+/// (the twist rotates the offset wall's horizontal slices).
+pub fn freeform_validity(act: &Actuator<f64>) -> Result<(), GeometryError> {
+    let n = FREEFORM_CHECK_SAMPLES;
+    let (mut rmax, mut zmax, mut rmin, mut zmin) = (f64::NEG_INFINITY, 0.0, f64::INFINITY, 0.0);
+    for i in 0..n {
+        let z = L_TUBE * i as f64 / (n - 1) as f64;
+        let rho = act.profile.eval(z).rho;
+        if !rho.is_finite() {
+            return Err(GeometryError::Invalid(format!("the freeform profile is not finite at z = {z:.2} mm")));
+        }
+        if rho > rmax {
+            (rmax, zmax) = (rho, z);
+        }
+        if rho < rmin {
+            (rmin, zmin) = (rho, z);
+        }
+    }
+    if rmax > R_TUBE + ENVELOPE_SLACK_MM {
+        return Err(GeometryError::Invalid(format!(
+            "profile_*_mm: the rest radius ρ(z) = {rmax:.4} mm at z = {zmax:.2} mm exceeds the tube radius R = {R_TUBE} mm by more than {ENVELOPE_SLACK_MM} mm (the freeform profile must stay within the envelope; the optimiser holds ρ ≤ R as a constraint)"
+        )));
+    }
+    let need = l_min_waist(act.section.r);
+    if rmin < need {
+        return Err(GeometryError::Invalid(format!(
+            "profile_*_mm / l_mm: the smallest rest radius ρ = {rmin:.4} mm (at z = {zmin:.2} mm) is below {need:.4} mm, the least at which the offset notch walls stay 1 mm apart and off the axis at r_mm = {}",
+            act.section.r
+        )));
+    }
+    let k = max_convex_curvature0(act);
+    if k * (T_WALL + 0.5) >= 1.0 {
+        return Err(GeometryError::Invalid(format!(
+            "profile_*_mm: the outer surface has a convex principal radius {:.3} mm < t + 0.5 mm = {} mm, so the inward offset by t would fold",
+            1.0 / k,
+            T_WALL + 0.5
+        )));
+    }
+    Ok(())
 }
 
 /// Closed-form scalar summary of one design (GEOMETRY.md §0, §3, §6).
@@ -768,12 +882,15 @@ impl ActuatorGeometry {
     pub fn new(design: &Design, policy: RangePolicy) -> Result<Self, GeometryError> {
         let (r, l, a) = design.validate(policy)?;
         let gamma = design.end_tangent_deg().map(f64::to_radians);
-        let act = Actuator::with_variant(r, l, a.to_radians(), gamma, design.variant);
+        let act = Actuator::with_variant(r, l, a.to_radians(), gamma, design.variant).with_freeform(design.twist_modes_deg().map(|v| v.map(f64::to_radians)), design.profile_modes_mm());
         if let Err(why) = act.profile.check() {
             let g = design.end_tangent_deg().unwrap_or(0.0);
             return Err(GeometryError::OutOfRange { name: P_END_TANGENT.into(), value: g, range: format!("[-30, {:.3}] deg", end_tangent_max_deg(l)), hint: format!(" at l_mm = {l}: {why}") });
         }
         let g = ActuatorGeometry { design: design.clone(), policy, act };
+        if act.is_freeform() {
+            freeform_validity(&act)?;
+        }
         if !(design.variant.is_spec() && gamma.is_none()) {
             // a variant's wall must be a valid normal offset (the spec's is, over its ranges:
             // GEOMETRY.md §4.3); twisting first can fold it where the twist shear makes the
@@ -824,19 +941,30 @@ impl ActuatorGeometry {
     /// be seeded on a design that does not carry it (the derivative at the spec's γ = 0).
     pub fn dual_actuator(&self, seed: &str) -> Result<Actuator<num_dual::Dual64>, GeometryError> {
         use num_dual::Dual64;
-        let (sr, sl, sa, sg): (f64, f64, f64, f64) = match seed {
-            P_R => (1.0, 0.0, 0.0, 0.0),
-            P_L => (0.0, 1.0, 0.0, 0.0),
-            P_ALPHA => (0.0, 0.0, 1.0, 0.0),
-            P_END_TANGENT => (0.0, 0.0, 0.0, 1.0),
-            other => return Err(GeometryError::UnknownParameter { name: other.to_string(), known: self.design.parameter_names().join(", ") }),
+        let mode = freeform::parse_param(seed);
+        let (sr, sl, sa, sg): (f64, f64, f64, f64) = match (seed, mode) {
+            (P_R, _) => (1.0, 0.0, 0.0, 0.0),
+            (P_L, _) => (0.0, 1.0, 0.0, 0.0),
+            (P_ALPHA, _) => (0.0, 0.0, 1.0, 0.0),
+            (P_END_TANGENT, _) => (0.0, 0.0, 0.0, 1.0),
+            (_, Some(_)) => (0.0, 0.0, 0.0, 0.0),
+            (other, None) => return Err(GeometryError::UnknownParameter { name: other.to_string(), known: self.design.parameter_names().join(", ") }),
         };
         let gamma = match (self.act.profile.gamma, sg != 0.0) {
             (Some(g), _) => Some(Dual64::new(g, sg.to_radians())),
             (None, true) => Some(Dual64::new(0.0, sg.to_radians())),
             (None, false) => None,
         };
-        Ok(Actuator::with_variant(Dual64::new(self.r(), sr), Dual64::new(self.l(), sl), Dual64::new(self.alpha_rad(), sa.to_radians()), gamma, self.act.variant))
+        // freeform modes: the design's (or zeros where the seeded family is absent: the
+        // derivative at the spec's geometry), the seeded one with a unit derivative part
+        let mut twist = self.act.twist_modes.map(|a| a.map(Dual64::from));
+        let mut bumps = self.act.profile.bumps.map(|b| b.map(Dual64::from));
+        match mode {
+            Some((freeform::ModeKind::Twist, i)) => twist.get_or_insert([Dual64::from(0.0); freeform::N_TWIST_MODES])[i].eps = 1f64.to_radians(),
+            Some((freeform::ModeKind::Profile, i)) => bumps.get_or_insert([Dual64::from(0.0); freeform::N_PROFILE_MODES])[i].eps = 1.0,
+            None => {}
+        }
+        Ok(Actuator::with_variant(Dual64::new(self.r(), sr), Dual64::new(self.l(), sl), Dual64::new(self.alpha_rad(), sa.to_radians()), gamma, self.act.variant).with_freeform(twist, bumps))
     }
 
     /// Largest convex principal curvature of the untwisted outer surface over a sample grid

@@ -75,7 +75,7 @@ pub fn designed_volume<D: Scalar>(act: &Actuator<D>) -> D {
 /// result carries the derivative with respect to the seeded design parameter (the surface
 /// partials ∂X/∂ŝ, ∂X/∂z use a nested dual number).
 pub fn enclosed_volume<D: Scalar>(act: &Actuator<D>, eta: f64, n: usize) -> D {
-    if act.needs_trim() || !act.variant.is_spec() {
+    if act.needs_trim() || !act.variant.is_spec() || act.is_freeform() {
         return enclosed_volume_general(act, eta, n);
     }
     let s = &act.section;

@@ -369,6 +369,11 @@ fn reduction_map(mesh: &Mesh, kind: ElementKind) -> Vec<usize> {
     map
 }
 
+/// The smallest minimum scaled Jacobian a freeform design's mesh may have (the letter's designs
+/// at Table I's extremes have ≥ 0.17 on the coarse mesh, 0.45 at the paper example); a freeform
+/// shape whose elements are more distorted is refused rather than solved on a poor mesh.
+pub const FREEFORM_MIN_SCALED_JACOBIAN: f64 = 0.1;
+
 /// Build the mesh for a validated geometry.
 pub fn build_mesh(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<ActuatorMesh, MeshError> {
     spec.validate()?;
@@ -382,6 +387,14 @@ pub fn build_mesh(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<ActuatorMe
         cyclic_pairs = cyclic_pairs.into_iter().filter(|(a, b)| map[*a] != usize::MAX && map[*b] != usize::MAX).map(|(a, b)| (map[a], map[b])).collect();
     }
     let quality = mesh_quality(&mesh)?;
+    if geom.act.is_freeform() && quality.min_scaled_jacobian < FREEFORM_MIN_SCALED_JACOBIAN {
+        return Err(MeshError::Spec(format!(
+            "the freeform design's mesh {} has a minimum scaled Jacobian {:.3} (element {}), below the floor {FREEFORM_MIN_SCALED_JACOBIAN} for freeform shapes: the twist law or profile varies too fast for this mesh (reduce twist_*_deg / profile_*_mm, or refine the mesh)",
+            spec.size_string(),
+            quality.min_scaled_jacobian,
+            quality.worst_element
+        )));
+    }
     Ok(ActuatorMesh { mesh, cyclic_pairs, quality, spec: *spec })
 }
 

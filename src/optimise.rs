@@ -983,7 +983,8 @@ pub fn starting_points(n: usize, count: usize) -> Vec<Vec<f64>> {
 
 /// The starts of a problem: the [design] itself first when `from_design`, then space-filling
 /// points ([`starting_points`]) contracted towards it by `spread` (x = x_d + spread (h − x_d), in
-/// scaled variables; spread = 1 gives the Halton points themselves).
+/// scaled variables; spread = 1 gives the Halton points themselves), skipping the points whose
+/// geometry is refused (as a freeform profile far out in its box is).
 pub fn problem_starting_points(op: &OptProblem, count: usize, from_design: bool, spread: f64, p_start: Option<f64>) -> Vec<Vec<f64>> {
     let xd: Vec<f64> = op
         .variables
@@ -1000,10 +1001,24 @@ pub fn problem_starting_points(op: &OptProblem, count: usize, from_design: bool,
     if from_design && count > 0 {
         out.push(xd.clone());
     }
-    let rest = count - out.len();
-    for h in starting_points(op.n(), rest) {
-        out.push(h.iter().zip(&xd).map(|(h, d)| if spread == 1.0 { *h } else { d + spread * (h - d) }).collect());
+    // Halton points in order, skipping those whose geometry cannot be built (a run from an
+    // invalid design has no gradient to follow); all of the first ones when none can be
+    let want = count - out.len();
+    let candidates = starting_points(op.n(), (8 * want).max(want + 64));
+    let contract = |h: &Vec<f64>| -> Vec<f64> { h.iter().zip(&xd).map(|(h, d)| if spread == 1.0 { *h } else { d + spread * (h - d) }).collect() };
+    let valid = |x: &Vec<f64>| {
+        let design = op.unscale(x);
+        let d = crate::geometry::Design { values: design.into_iter().filter(|(k, _)| k.as_str() != P_PRESSURE).collect(), variant: op.variant };
+        ActuatorGeometry::new(&d, op.policy).is_ok()
+    };
+    let mut picked: Vec<Vec<f64>> = candidates.iter().map(contract).filter(valid).take(want).collect();
+    for h in candidates.iter().map(contract) {
+        if picked.len() >= want {
+            break;
+        }
+        picked.push(h);
     }
+    out.extend(picked);
     out
 }
 

@@ -195,6 +195,7 @@ fn freeform_problem_starts_and_envelope_constraint() {
         for (x, d) in s.iter().zip(&starts[0]) {
             assert!((x - d).abs() <= 0.9 * sec.start_spread + 1e-12 && (0.0..=1.0).contains(x));
         }
+        assert!(op.envelope_constraints(s).is_some(), "a start whose geometry is refused");
     }
     // a bulge at l = 17: ρ(L/2) = 17 + b₁ crosses R = 20 at b₁ = 3
     let i1 = op.variables.iter().position(|x| x.name == "profile_1_mm").unwrap();

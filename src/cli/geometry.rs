@@ -23,15 +23,23 @@ pub enum Order {
 #[derive(Debug, Args)]
 pub struct GeometryArgs {
     /// Design parameter r_mm: arc radius r of the horseshoe section in mm (Table I: 5√3 ≈ 8.660254 … 20).
-    #[arg(long = "r", value_name = "MM", allow_negative_numbers = true)]
-    pub r: f64,
+    #[arg(long = "r", value_name = "MM", allow_negative_numbers = true, required_unless_present = "design")]
+    pub r: Option<f64>,
     /// Design parameter l_mm: waist radius l of the bellows profile in mm (Table I: 10 … 20).
-    #[arg(long = "l", value_name = "MM", allow_negative_numbers = true)]
-    pub l: f64,
+    #[arg(long = "l", value_name = "MM", allow_negative_numbers = true, required_unless_present = "design")]
+    pub l: Option<f64>,
     /// Design parameter alpha_deg: pre-twist α of the top face in degrees (Table I: 60 … 360;
     /// counter-clockwise about +z).
-    #[arg(long = "alpha", value_name = "DEG", allow_negative_numbers = true)]
-    pub alpha: f64,
+    #[arg(long = "alpha", value_name = "DEG", allow_negative_numbers = true, required_unless_present = "design")]
+    pub alpha: Option<f64>,
+    /// Any design parameter by name, e.g. a freeform mode: --param twist_2_deg=-10 (repeatable;
+    /// problems/README.md lists them). Applied after --design.
+    #[arg(long = "param", value_name = "NAME=VALUE", allow_hyphen_values = true)]
+    pub params: Vec<String>,
+    /// A design from JSON: an object of parameter values by name, or an optimiser's best.json
+    /// (its best run's design). --r/--l/--alpha and --param override its values.
+    #[arg(long, value_name = "FILE.json")]
+    pub design: Option<PathBuf>,
     /// Mesh: a preset (coarse = 24x8x1, default = 48x16x2, fine = 60x20x2, sweep = 48x16x1) or an explicit
     /// <Na>x<Nz>x<Nt> (elements around, along, through; Na a multiple of 3, Nz of 4). The same
     /// element counts are used with --order linear.
@@ -64,12 +72,48 @@ pub struct GeometryArgs {
     pub out: PathBuf,
 }
 
+/// Design values from a JSON file: a flat object of numbers by name (p_kPa and non-numbers are
+/// skipped), or an optimiser's best.json (the design of its run with the best objective).
+fn design_values_from_json(path: &Path) -> Result<std::collections::BTreeMap<String, f64>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("--design: cannot read {}", path.display()))?;
+    let v: Value = serde_json::from_str(&text).with_context(|| format!("--design: {} is not JSON", path.display()))?;
+    let obj = match v.get("runs").and_then(Value::as_array) {
+        Some(runs) => runs
+            .iter()
+            .filter(|r| r.get("design").is_some_and(Value::is_object))
+            .max_by(|a, b| a["objective"].as_f64().unwrap_or(f64::NEG_INFINITY).total_cmp(&b["objective"].as_f64().unwrap_or(f64::NEG_INFINITY)))
+            .map(|r| r["design"].clone())
+            .ok_or_else(|| anyhow::anyhow!("--design: {} has no run with a design", path.display()))?,
+        None => v,
+    };
+    let obj = obj.as_object().ok_or_else(|| anyhow::anyhow!("--design: expected a JSON object of parameter values in {}", path.display()))?;
+    Ok(obj.iter().filter(|(k, _)| k.as_str() != "p_kPa").filter_map(|(k, v)| v.as_f64().map(|x| (k.clone(), x))).collect())
+}
+
 /// Build geometry + mesh and write all outputs; returns the summary JSON.
 pub fn generate(args: &GeometryArgs) -> Result<Value> {
     let variant = crate::geometry::GeometryVariant::parse(&args.variant).map_err(|e| anyhow::anyhow!("--variant: {e}"))?;
-    let mut design = Design::new(args.r, args.l, args.alpha).with_variant(variant);
+    let mut design = Design::default().with_variant(variant);
+    if let Some(path) = &args.design {
+        design.values = design_values_from_json(path)?;
+    }
+    for (name, v) in [("r_mm", args.r), ("l_mm", args.l), ("alpha_deg", args.alpha)] {
+        if let Some(v) = v {
+            design.values.insert(name.into(), v);
+        }
+    }
+    for kv in &args.params {
+        let (k, v) = kv.split_once('=').ok_or_else(|| anyhow::anyhow!("--param '{kv}': expected NAME=VALUE (e.g. twist_2_deg=-10)"))?;
+        let v: f64 = v.trim().parse().map_err(|_| anyhow::anyhow!("--param '{kv}': '{}' is not a number", v.trim()))?;
+        design = design.with(k.trim(), v).map_err(|e| anyhow::anyhow!("--param '{kv}': {e}"))?;
+    }
     if let Some(g) = args.end_tangent {
         design = design.with_end_tangent(g);
+    }
+    for name in ["r_mm", "l_mm", "alpha_deg"] {
+        if !design.values.contains_key(name) {
+            anyhow::bail!("the design has no {name} (give --{} or a --design file with it)", &name[..name.find('_').unwrap_or(name.len())]);
+        }
     }
     let policy = if args.extended_range { RangePolicy::Extended } else { RangePolicy::TableI };
     let geom = ActuatorGeometry::new(&design, policy)?;
@@ -95,7 +139,12 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     write_vtu(&dir.join("mesh.vtu"), &am.mesh, &point_data, &[DataArray::new("min_scaled_jacobian", 1, &sj)])?;
     write_stl_binary(&dir.join("outer.stl"), &outer, "outer")?;
     write_stl_binary(&dir.join("cavity.stl"), &cavity, "cavity")?;
-    let mut heading = format!("twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}", args.r, args.l, args.alpha, spec.size_string(), spec.kind, if spec.sector { " sector" } else { "" });
+    let mut heading = format!("twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}", design.r_mm(), design.l_mm(), design.alpha_deg(), spec.size_string(), spec.kind, if spec.sector { " sector" } else { "" });
+    for (k, v) in &design.values {
+        if crate::geometry::freeform::parse_param(k).is_some() {
+            heading.push_str(&format!(" {k}={v}"));
+        }
+    }
     if !variant.is_spec() {
         heading.push_str(&format!(" variant={variant}"));
     }
@@ -133,6 +182,7 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     m.insert("cyclic_pairs".into(), json!(am.cyclic_pairs.len()));
     m.insert("min_scaled_jacobian".into(), json!(am.quality.min_scaled_jacobian));
     m.insert("worst_element".into(), json!(am.quality.worst_element));
+    m.insert("design".into(), json!(design.values));
     m.insert("mesh_generation_seconds".into(), json!(mesh_seconds));
     m.insert("meshed_outer_volume_mm3".into(), json!(outer.volume()));
     m.insert("meshed_chamber_volume_mm3".into(), json!(cavity.volume()));
@@ -147,7 +197,7 @@ pub fn run(args: &GeometryArgs) -> Result<()> {
     let v = generate(args)?;
     println!(
         "r = {} mm, l = {} mm, alpha = {} deg: T = {:.4} mm, chamber volume = {:.3} mm3, wall volume = {:.3} mm3",
-        args.r, args.l, args.alpha, v["T_mm"], v["chamber_volume_mm3"], v["wall_volume_mm3"]
+        v["r_mm"], v["l_mm"], v["alpha_deg"], v["T_mm"], v["chamber_volume_mm3"], v["wall_volume_mm3"]
     );
     println!(
         "mesh {} {}: {} nodes, {} elements, min scaled Jacobian {:.4}; wrote {}",

@@ -90,6 +90,37 @@ fn design_values_from_json(path: &Path) -> Result<std::collections::BTreeMap<Str
     Ok(obj.iter().filter(|(k, _)| k.as_str() != "p_kPa").filter_map(|(k, v)| v.as_f64().map(|x| (k.clone(), x))).collect())
 }
 
+/// A freeform design's lateral profile and twist law against the letter's three-arc profile
+/// and linear twist at the same (r, l, α): shape.csv and the plots profile.{png,svg},
+/// twist.{png,svg}. Returns the file names.
+fn write_freeform_shape(dir: &Path, geom: &ActuatorGeometry) -> Result<Vec<String>> {
+    use crate::geometry::L_TUBE;
+    use crate::plot::{line_plot, LinePlot, Series};
+    let act = &geom.act;
+    let spec = crate::geometry::Actuator::with_variant(act.section.r, act.profile.l, act.alpha, act.profile.gamma, act.variant);
+    let n = 201;
+    let mut csv = String::from("z_mm,rho_mm,rho_letter_mm,twist_deg,twist_linear_deg\n");
+    let (mut prof, mut prof0, mut tw, mut tw0) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for i in 0..n {
+        let z = L_TUBE * i as f64 / (n - 1) as f64;
+        let (r, r0) = (act.profile.eval(z).rho, spec.profile.eval(z).rho);
+        let (t, t0) = (act.twist_angle(z).0.to_degrees(), spec.twist_angle(z).0.to_degrees());
+        csv.push_str(&format!("{z},{r},{r0},{t},{t0}\n"));
+        prof.push((z, r));
+        prof0.push((z, r0));
+        tw.push((z, t));
+        tw0.push((z, t0));
+    }
+    std::fs::write(dir.join("shape.csv"), csv).with_context(|| format!("cannot write {}", dir.join("shape.csv").display()))?;
+    let line = |name: &str, pts: Vec<(f64, f64)>| Series { name: name.into(), points: pts, markers: false, line: true };
+    line_plot(
+        &dir.join("profile"),
+        &LinePlot::new("Lateral profile (rest radius of the designed surface)", "z (mm)", "rho (mm)").with(line("freeform", prof)).with(line("letter's three arcs (same l)", prof0)),
+    )?;
+    line_plot(&dir.join("twist"), &LinePlot::new("Twist law", "z (mm)", "twist angle (deg)").with(line("freeform", tw)).with(line("letter's linear twist (same alpha)", tw0)))?;
+    Ok(["shape.csv", "profile.png", "profile.svg", "twist.png", "twist.svg"].map(String::from).to_vec())
+}
+
 /// Build geometry + mesh and write all outputs; returns the summary JSON.
 pub fn generate(args: &GeometryArgs) -> Result<Value> {
     let variant = crate::geometry::GeometryVariant::parse(&args.variant).map_err(|e| anyhow::anyhow!("--variant: {e}"))?;
@@ -183,6 +214,9 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     m.insert("min_scaled_jacobian".into(), json!(am.quality.min_scaled_jacobian));
     m.insert("worst_element".into(), json!(am.quality.worst_element));
     m.insert("design".into(), json!(design.values));
+    if geom.act.is_freeform() {
+        m.insert("freeform_files".into(), json!(write_freeform_shape(dir, &geom)?));
+    }
     m.insert("mesh_generation_seconds".into(), json!(mesh_seconds));
     m.insert("meshed_outer_volume_mm3".into(), json!(outer.volume()));
     m.insert("meshed_chamber_volume_mm3".into(), json!(cavity.volume()));

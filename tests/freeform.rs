@@ -153,19 +153,20 @@ fn invalid_freeform_designs_are_refused_with_the_violated_condition() {
     assert!(base.with("twist_9_deg", 1.0).is_err() && base.with("profile_11_mm", 1.0).is_err());
 }
 
-/// Adjoint gradients w.r.t. freeform parameters against central differences at coarse fidelity
-/// (the same check as tests/gradient.rs for r, l, α), in the free and pure-twist scenes.
+/// Adjoint gradients w.r.t. every freeform parameter against central differences at coarse
+/// fidelity (the same check as tests/gradient.rs for r, l, α), in the free and pure-twist scenes.
 #[test]
 fn adjoint_gradients_of_freeform_parameters_match_central_differences() {
-    let d = Design::new(12.0, 15.0, 200.0).with(&twist_param(1), 15.0).unwrap().with(&twist_param(2), -8.0).unwrap().with(&profile_param(1), 0.6).unwrap().with(&profile_param(2), -0.4).unwrap();
+    // every mode present (so that every one has an adjoint gradient to check)
+    let d = with_modes(&Design::new(12.0, 15.0, 200.0), &[15.0, -8.0, 4.0, -3.0, 2.0, 1.0, -1.0, 0.5], &[0.6, -0.4, 0.2, 0.15, -0.1, 0.05, 0.05, -0.03, 0.02, 0.01]);
     let g = ActuatorGeometry::new(&d, RangePolicy::TableI).unwrap();
     let o = SceneOptions::new(MeshSpec::preset("coarse").unwrap(), Material::NeoHookean(NeoHookean::with_ratio(0.34, 300.0).unwrap()));
     for kind in [SceneKind::Free, SceneKind::PureTwist] {
         let sg = scene_gradient(&g, &o, kind, 20.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
         assert_eq!(sg.status, twistopt::scene::SceneStatus::Converged, "{kind:?}: {}", sg.cause);
         for grad in sg.gradients.values() {
-            for name in ["twist_1_deg", "twist_2_deg", "profile_1_mm", "profile_2_mm"] {
-                assert!(grad[name].is_finite() && grad[name] != 0.0, "{kind:?} {name}: {}", grad[name]);
+            for name in (1..=N_TWIST_MODES).map(twist_param).chain((1..=N_PROFILE_MODES).map(profile_param)) {
+                assert!(grad[&name].is_finite() && grad[&name] != 0.0, "{kind:?} {name}: {}", grad[&name]);
             }
         }
         let rep = fd_check(&g, &o, kind, &sg, &[1e-4, 1e-5]);

@@ -1006,10 +1006,12 @@ pub fn problem_starting_points(op: &OptProblem, count: usize, from_design: bool,
     let want = count - out.len();
     let candidates = starting_points(op.n(), (8 * want).max(want + 64));
     let contract = |h: &Vec<f64>| -> Vec<f64> { h.iter().zip(&xd).map(|(h, d)| if spread == 1.0 { *h } else { d + spread * (h - d) }).collect() };
+    // (and whose mesh is refused at a fidelity the runs use: a freeform shape too distorted)
+    let meshes: Vec<crate::meshing::MeshSpec> = std::iter::once(op.opts.mesh).chain(op.stages.iter().map(|s| s.mesh)).collect();
     let valid = |x: &Vec<f64>| {
         let design = op.unscale(x);
         let d = crate::geometry::Design { values: design.into_iter().filter(|(k, _)| k.as_str() != P_PRESSURE).collect(), variant: op.variant };
-        ActuatorGeometry::new(&d, op.policy).is_ok()
+        ActuatorGeometry::new(&d, op.policy).is_ok_and(|g| !g.act.is_freeform() || meshes.iter().all(|m| crate::meshing::build_mesh(&g, m).is_ok()))
     };
     let mut picked: Vec<Vec<f64>> = candidates.iter().map(contract).filter(valid).take(want).collect();
     for h in candidates.iter().map(contract) {

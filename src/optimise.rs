@@ -277,6 +277,11 @@ impl OptProblem {
         self.variables.len()
     }
 
+    /// The geometry's design of unscaled values (p_kPa dropped), with the problem's variant.
+    fn design_of(&self, values: &BTreeMap<String, f64>) -> crate::geometry::Design {
+        crate::geometry::Design { values: values.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect(), variant: self.variant }
+    }
+
     /// The design parameters and p by name at scaled variables x (the fixed ones included).
     pub fn unscale(&self, x: &[f64]) -> BTreeMap<String, f64> {
         let mut d = self.fixed.clone();
@@ -316,7 +321,7 @@ impl OptProblem {
     /// [`OptProblem::envelope_of`] at scaled variables x (None where the geometry cannot be built).
     pub fn envelope_constraints(&self, x: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
         let design = self.unscale(x);
-        let d = crate::geometry::Design { values: design.into_iter().filter(|(k, _)| k.as_str() != P_PRESSURE).collect(), variant: self.variant };
+        let d = self.design_of(&design);
         let geom = ActuatorGeometry::new(&d, self.policy).ok()?;
         Some(self.envelope_of(&geom))
     }
@@ -381,7 +386,7 @@ impl OptProblem {
             ev.time_s = t0.elapsed().as_secs_f64();
             ev
         };
-        let d = crate::geometry::Design { values: design.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect(), variant: self.variant };
+        let d = self.design_of(&design);
         let geom = match ActuatorGeometry::new(&d, self.policy) {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("invalid-geometry: {e}")),
@@ -1010,7 +1015,7 @@ pub fn problem_starting_points(op: &OptProblem, count: usize, from_design: bool,
     let meshes: Vec<crate::meshing::MeshSpec> = std::iter::once(op.opts.mesh).chain(op.stages.iter().map(|s| s.mesh)).collect();
     let valid = |x: &Vec<f64>| {
         let design = op.unscale(x);
-        let d = crate::geometry::Design { values: design.into_iter().filter(|(k, _)| k.as_str() != P_PRESSURE).collect(), variant: op.variant };
+        let d = op.design_of(&design);
         ActuatorGeometry::new(&d, op.policy).is_ok_and(|g| !g.act.is_freeform() || meshes.iter().all(|m| crate::meshing::build_mesh(&g, m).is_ok()))
     };
     let mut picked: Vec<Vec<f64>> = candidates.iter().map(contract).filter(valid).take(want).collect();

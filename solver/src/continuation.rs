@@ -1330,7 +1330,7 @@ impl<'a> LoadPath<'a> {
 /// An element failure as the path follower's evaluation failure.
 pub(crate) fn elem_eval(e: ElementError) -> EvalFailure {
     match e {
-        ElementError::Inverted(_) | ElementError::BadReference(_) => EvalFailure::Inversion,
+        ElementError::Inverted(_) | ElementError::BadReference(_) | ElementError::Penetration(_) => EvalFailure::Inversion,
         // (a failed sparse setup: refused at model construction where the full tangent is used)
         ElementError::NonFinite(_) | ElementError::Setup => EvalFailure::NonFinite,
     }

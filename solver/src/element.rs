@@ -76,6 +76,8 @@ pub enum ElementError {
     NonFinite(usize),
     #[error("the sparse tangent's setup (ordering, symbolic analysis) failed")]
     Setup,
+    #[error("contact: node {0} reached or crossed its contact surface")]
+    Penetration(usize),
 }
 
 /// Summary of one element evaluation.

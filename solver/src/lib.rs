@@ -5,6 +5,7 @@
 //! sparse assembly, Newton with line search, adaptive load stepping and adjoint sensitivities.
 
 pub mod adjoint;
+pub mod contact;
 pub mod continuation;
 pub mod dofmap;
 pub mod element;

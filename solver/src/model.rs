@@ -135,6 +135,8 @@ pub struct Assembled {
     /// cavity pressure); empty without a cavity.
     pub dvol: Vec<f64>,
     pub min_det_f: f64,
+    /// The smallest contact gap (∞ without contact).
+    pub contact_gap: f64,
     pub u: Vec<[f64; 3]>,
     pub kin: Vec<BodyKin>,
 }
@@ -175,6 +177,8 @@ pub struct Model {
     buffers: std::sync::Mutex<Vec<Vec<f64>>>,
     /// Scatter tables of the cavity faces and edges.
     cavity_scatter: std::sync::OnceLock<Option<Vec<ElemScatter>>>,
+    /// Frictionless barrier contact ([`crate::contact`]), if any.
+    contact: Option<crate::contact::Contact>,
 }
 
 /// The sparse tangent's structure: its pattern, in the order of the fill-reducing ordering, and
@@ -217,7 +221,25 @@ impl Model {
             scatter_cache: std::sync::OnceLock::new(),
             buffers: std::sync::Mutex::new(Vec::new()),
             cavity_scatter: std::sync::OnceLock::new(),
+            contact: None,
         })
+    }
+
+    /// Add a frictionless barrier contact (slave nodes against target triangles). Its pairs
+    /// enter the tangent's sparsity pattern, so the sparse setup is redone.
+    pub fn set_contact(&mut self, contact: crate::contact::Contact) -> Result<(), ModelError> {
+        contact.validate(self.mesh.n_nodes()).map_err(ModelError::Mesh)?;
+        self.contact = Some(contact);
+        self.sparse = std::sync::OnceLock::new();
+        self.scatter_cache = std::sync::OnceLock::new();
+        self.cavity_scatter = std::sync::OnceLock::new();
+        self.symbolic_lu = std::sync::OnceLock::new();
+        Ok(())
+    }
+
+    /// The model's contact, if any.
+    pub fn contact(&self) -> Option<&crate::contact::Contact> {
+        self.contact.as_ref()
     }
 
     /// Redo the symbolic analysis with another fill-reducing ordering.
@@ -245,7 +267,8 @@ impl Model {
     fn sparse_setup(&self) -> Result<&SparseSetup, ModelError> {
         self.sparse
             .get_or_init(|| {
-                let pattern = build_pattern(&self.mesh, &self.dofs);
+                let groups = self.contact.as_ref().map(|c| c.coupling_groups()).unwrap_or_default();
+                let pattern = build_pattern(&self.mesh, &self.dofs, &groups);
                 symbolic_analysis(&pattern, self.ordering).map(|(pattern, symbolic)| SparseSetup { pattern, symbolic }).map_err(|e| e.to_string())
             })
             .as_ref()
@@ -405,6 +428,27 @@ impl Model {
                 }
             }
         }
+        // barrier contact: energy κ w b(d), force and exact Hessian per slave node
+        let mut contact_gap = f64::INFINITY;
+        if let Some(con) = &self.contact {
+            let xcur = |n: usize| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]];
+            let (terms, gap) = con.terms(&xcur, want_k).map_err(|p| ElementError::Penetration(p.node))?;
+            contact_gap = gap;
+            let mut rws: Vec<Vec<(u32, f64)>> = Vec::new();
+            for t in &terms {
+                energy += t.energy;
+                for (a, &n) in t.nodes.iter().enumerate() {
+                    for c in 0..3 {
+                        r_full[3 * n + c] += t.force[3 * a + c];
+                    }
+                }
+                if let (Some(kv), Some(sp)) = (kv.as_mut(), sp) {
+                    rws.clear();
+                    self.fill_rows(&t.nodes, &kin, &mut rws);
+                    self.scatter(sp, &rws, &t.hessian, kv);
+                }
+            }
+        }
         // dead nodal forces
         if !loads.nodal_forces.is_empty() {
             if loads.nodal_forces.len() != r_full.len() {
@@ -449,7 +493,7 @@ impl Model {
                 }
             }
         }
-        Ok(Assembled { r, k: kv, r_full, f_scale: f_int_sq.sqrt(), energy, volume, dvol, min_det_f, u, kin })
+        Ok(Assembled { r, k: kv, r_full, f_scale: f_int_sq.sqrt(), energy, volume, dvol, min_det_f, contact_gap, u, kin })
     }
 
     /// The reduced load of a unit cavity pressure: ∂V/∂q (`dvol` of an assembly), less each rigid
@@ -1030,16 +1074,19 @@ pub(crate) fn relabel(e: ElementError, el: usize) -> ElementError {
         ElementError::Inverted(_) => ElementError::Inverted(el),
         ElementError::NonFinite(_) => ElementError::NonFinite(el),
         ElementError::Setup => ElementError::Setup,
+        ElementError::Penetration(n) => ElementError::Penetration(n),
     }
 }
 
-fn build_pattern(mesh: &Mesh, dofs: &DofMap) -> Pattern {
+/// The pattern of the elements, the rigid bodies' DOFs and the extra node groups (e.g. contact
+/// pairs), each group coupling all of its nodes.
+fn build_pattern(mesh: &Mesh, dofs: &DofMap, groups: &[Vec<usize>]) -> Pattern {
     let n = dofs.n_reduced();
     let mut cols: Vec<Vec<u32>> = vec![Vec::new(); n];
     let mut idx = Vec::new();
-    for e in 0..mesh.n_elements() {
+    for e in (0..mesh.n_elements()).map(|e| mesh.element(e)).chain(groups.iter().map(|g| g.as_slice())) {
         idx.clear();
-        for &node in mesh.element(e) {
+        for &node in e {
             for c in 0..3 {
                 dofs.row_pattern(node, c, &mut idx);
             }

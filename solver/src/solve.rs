@@ -82,7 +82,7 @@ pub fn newton_factored(model: &Model, q: &mut Vec<f64>, loads: &Loads, opts: &Ne
 
 fn elem_fail(e: ElementError) -> NewtonFailure {
     match e {
-        ElementError::Inverted(_) | ElementError::BadReference(_) => NewtonFailure::Inversion,
+        ElementError::Inverted(_) | ElementError::BadReference(_) | ElementError::Penetration(_) => NewtonFailure::Inversion,
         ElementError::NonFinite(_) | ElementError::Setup => NewtonFailure::Divergence,
     }
 }

@@ -1,0 +1,501 @@
+//! Frictionless contact by a smooth log barrier (the barrier of IPC, Li et al., SIGGRAPH 2020).
+//!
+//! A *slave* node i carries the energy κ wᵢ b(dᵢ), with
+//!
+//! * dᵢ the distance from the node to its *target surface*, a set of triangles (the contact
+//!   surface of another part, or the other side of the same cavity, or a fixed obstacle): the
+//!   distance to the closest candidate triangle, of the IPC type of its closest point (face
+//!   interior, edge or vertex), so that a node above a shared edge or vertex is counted once and
+//!   dᵢ is continuous and, on a smooth surface, continuously differentiable;
+//! * b(d) = −(d − d̂)² ln(d/d̂) for d < d̂ and 0 beyond (`ipc-toolkit` src/ipc/barrier/barrier.cpp),
+//!   C² at d̂ and unbounded as d → 0;
+//! * wᵢ the node's consistent reference area ∫ Nᵢ dA over the slave faces ([`nodal_areas`]), so
+//!   that equal gaps carry the consistent nodal loads of a uniform contact pressure κ·|b'(d)| and
+//!   the contact pressure does not depend on the mesh.
+//!
+//! The energy's gradient is the contact force and its Hessian (the exact one, not projected: the
+//! Newton solves and the adjoint see the same tangent) is κ w (b'' ∇d ∇dᵀ + b' ∇²d), with ∇d and
+//! ∇²d of the node and the target triangle's vertices from second-order dual numbers.
+//!
+//! A state where a node lies behind the face of its closest target triangle (signed distance
+//! ≤ 0 over the face interior) or touches it is not admissible: the assembly reports
+//! [`crate::element::ElementError::Penetration`], which the Newton line search treats like an
+//! inverted element (the step is cut). A node that crosses a target surface across an edge in
+//! one step is not detected (no continuous collision detection yet): steps are small compared
+//! with the barrier's reach where this matters.
+//!
+//! Hex27 (and Hex8) faces enter as triangles on their node grid ([`face_triangles`]), oriented
+//! with the face's outward normal.
+
+use crate::mesh::{Face, Mesh};
+use crate::scalar::{cross, dot, Scalar};
+use crate::shape::FaceRule;
+use nalgebra::SVector;
+use num_dual::{hessian, Dual2SVec64};
+
+/// The barrier: its reach d̂ (a length) and stiffness κ (a pressure per length: the contact
+/// pressure at gap d is κ·|b'(d)|).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Barrier {
+    pub dhat: f64,
+    pub kappa: f64,
+}
+
+impl Barrier {
+    /// b(d), b'(d), b''(d) (zero for d ≥ d̂; only d > 0 is meaningful).
+    pub fn eval(&self, d: f64) -> (f64, f64, f64) {
+        let dh = self.dhat;
+        if d >= dh {
+            return (0.0, 0.0, 0.0);
+        }
+        let x = d - dh;
+        let l = (d / dh).ln();
+        (-x * x * l, -2.0 * x * l - x * x / d, -2.0 * l - 4.0 * x / d + x * x / (d * d))
+    }
+
+    /// The contact pressure κ·|b'(d)| at gap d.
+    pub fn pressure(&self, d: f64) -> f64 {
+        -self.kappa * self.eval(d).1
+    }
+
+    /// The gap at which the contact pressure is `p` (> 0), by bisection on the monotone κ|b'|.
+    pub fn gap_at_pressure(&self, p: f64) -> f64 {
+        // κ|b'| falls monotonically from ∞ at 0 to 0 at d̂: bisection in log d
+        let (mut lo, mut hi) = (self.dhat * 1e-15, self.dhat);
+        for _ in 0..200 {
+            let mid = (lo * hi).sqrt();
+            if self.pressure(mid) > p {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        (lo * hi).sqrt()
+    }
+}
+
+/// A triangle vertex: a mesh node (moves with the model) or a fixed point (a rigid obstacle).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub enum Vertex {
+    Node(usize),
+    Fixed([f64; 3]),
+}
+
+/// A target triangle; its normal (b − a) × (c − a) points to the side slave nodes come from.
+pub type Triangle = [Vertex; 3];
+
+/// A slave node: its weight (consistent reference area) and its candidate target triangles
+/// (indices into [`Contact::triangles`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Slave {
+    pub node: usize,
+    pub weight: f64,
+    pub targets: Vec<usize>,
+}
+
+/// A frictionless barrier contact: slave nodes against target triangles.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Contact {
+    pub barrier: Barrier,
+    pub triangles: Vec<Triangle>,
+    pub slaves: Vec<Slave>,
+}
+
+/// The type of the closest point of a triangle to a point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Closest {
+    /// The face interior (the distance is the signed distance to the triangle's plane).
+    Face,
+    /// The edge from vertex i to vertex (i + 1) % 3.
+    Edge(usize),
+    Vertex(usize),
+}
+
+/// Distance from p to the triangle (a, b, c) in f64: (unsigned distance, signed distance to the
+/// plane, closest-point type).
+pub fn point_triangle(p: [f64; 3], t: [[f64; 3]; 3]) -> (f64, f64, Closest) {
+    let sub = |u: [f64; 3], v: [f64; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
+    let nrm = |u: [f64; 3]| dot(u, u).sqrt();
+    let e0 = sub(t[1], t[0]);
+    let e1 = sub(t[2], t[0]);
+    let n = cross(e0, e1);
+    let nn = nrm(n);
+    let ap = sub(p, t[0]);
+    let signed = if nn > 0.0 { dot(n, ap) / nn } else { f64::NAN };
+    if nn > 0.0 {
+        // barycentric coordinates of the projection: p' = a + u e0 + v e1
+        let (d00, d01, d11) = (dot(e0, e0), dot(e0, e1), dot(e1, e1));
+        let (d20, d21) = (dot(ap, e0), dot(ap, e1));
+        let den = d00 * d11 - d01 * d01;
+        let u = (d11 * d20 - d01 * d21) / den;
+        let v = (d00 * d21 - d01 * d20) / den;
+        // (a projection on an edge or vertex, to round-off, counts as the face's: on a flat
+        // surface the edge and vertex types would carry a spurious lateral curvature 1/d)
+        let tol = 1e-9;
+        if u >= -tol && v >= -tol && u + v <= 1.0 + tol {
+            return (signed.abs(), signed, Closest::Face);
+        }
+    }
+    // the closest point lies on the boundary: the nearest edge, clamped to its ends
+    let mut best = (f64::INFINITY, Closest::Vertex(0));
+    for i in 0..3 {
+        let (a, b) = (t[i], t[(i + 1) % 3]);
+        let e = sub(b, a);
+        let ee = dot(e, e);
+        let s = if ee > 0.0 { dot(sub(p, a), e) / ee } else { 0.0 };
+        let (d, kind) = if s <= 0.0 {
+            (nrm(sub(p, a)), Closest::Vertex(i))
+        } else if s >= 1.0 {
+            (nrm(sub(p, b)), Closest::Vertex((i + 1) % 3))
+        } else {
+            (nrm(sub(p, [a[0] + s * e[0], a[1] + s * e[1], a[2] + s * e[2]])), Closest::Edge(i))
+        };
+        if d < best.0 {
+            best = (d, kind);
+        }
+    }
+    (best.0, signed, best.1)
+}
+
+/// The distance of type `kind` from p to the triangle, generic in the scalar (for its
+/// derivatives): the signed plane distance for [`Closest::Face`], else the unsigned distance to
+/// the edge's line or to the vertex.
+pub fn typed_distance<D: Scalar>(p: [D; 3], t: [[D; 3]; 3], kind: Closest) -> D {
+    let sub = |u: [D; 3], v: [D; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
+    match kind {
+        Closest::Face => {
+            let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
+            dot(n, sub(p, t[0])) / dot(n, n).sqrt()
+        }
+        Closest::Edge(i) => {
+            let (a, b) = (t[i], t[(i + 1) % 3]);
+            let c = cross(sub(p, a), sub(b, a));
+            let e = sub(b, a);
+            (dot(c, c) / dot(e, e)).sqrt()
+        }
+        Closest::Vertex(i) => {
+            let d = sub(p, t[i]);
+            dot(d, d).sqrt()
+        }
+    }
+}
+
+/// One slave node's contribution at the current positions.
+#[derive(Clone, Debug)]
+pub struct SlaveTerm {
+    /// the node's distance to its target surface
+    pub gap: f64,
+    pub energy: f64,
+    /// the nodes the term couples (the slave first, then the target triangle's mesh nodes)
+    pub nodes: Vec<usize>,
+    /// ∂E/∂x over `nodes` (3 per node)
+    pub force: Vec<f64>,
+    /// ∂²E/∂x² over `nodes`, row-major (empty unless requested)
+    pub hessian: Vec<f64>,
+}
+
+/// Why a state is not admissible for the contact.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Penetration {
+    pub node: usize,
+}
+
+impl Contact {
+    /// Check node and triangle indices against a mesh of `n_nodes` nodes.
+    pub fn validate(&self, n_nodes: usize) -> Result<(), String> {
+        if !(self.barrier.dhat > 0.0 && self.barrier.dhat.is_finite()) || !(self.barrier.kappa > 0.0 && self.barrier.kappa.is_finite()) {
+            return Err(format!("contact barrier needs d̂ > 0 and κ > 0 (got d̂ = {}, κ = {})", self.barrier.dhat, self.barrier.kappa));
+        }
+        for (k, t) in self.triangles.iter().enumerate() {
+            for v in t {
+                if let Vertex::Node(n) = v {
+                    if *n >= n_nodes {
+                        return Err(format!("contact triangle {k} refers to node {n} of {n_nodes}"));
+                    }
+                }
+            }
+        }
+        for s in &self.slaves {
+            if s.node >= n_nodes {
+                return Err(format!("contact slave node {} of {n_nodes}", s.node));
+            }
+            if !(s.weight >= 0.0 && s.weight.is_finite()) {
+                return Err(format!("contact slave node {} has weight {}", s.node, s.weight));
+            }
+            if let Some(&t) = s.targets.iter().find(|&&t| t >= self.triangles.len()) {
+                return Err(format!("contact slave node {} refers to triangle {t} of {}", s.node, self.triangles.len()));
+            }
+            if s.targets.iter().any(|&t| self.triangles[t].contains(&Vertex::Node(s.node))) {
+                return Err(format!("contact slave node {} is a vertex of one of its own target triangles", s.node));
+            }
+        }
+        Ok(())
+    }
+
+    /// The node groups the tangent couples: each slave with every node of its candidate triangles.
+    pub fn coupling_groups(&self) -> Vec<Vec<usize>> {
+        self.slaves
+            .iter()
+            .map(|s| {
+                let mut g = vec![s.node];
+                for &t in &s.targets {
+                    for v in &self.triangles[t] {
+                        if let Vertex::Node(n) = v {
+                            g.push(*n);
+                        }
+                    }
+                }
+                g.sort_unstable();
+                g.dedup();
+                g
+            })
+            .collect()
+    }
+
+    fn coords(&self, t: usize, x: &impl Fn(usize) -> [f64; 3]) -> [[f64; 3]; 3] {
+        let tri = &self.triangles[t];
+        [0, 1, 2].map(|k| match tri[k] {
+            Vertex::Node(n) => x(n),
+            Vertex::Fixed(p) => p,
+        })
+    }
+
+    /// The slave's distance to its target surface: (unsigned distance, signed distance, closest
+    /// type, triangle), or None without candidates.
+    pub fn closest(&self, s: &Slave, x: &impl Fn(usize) -> [f64; 3]) -> Option<(f64, f64, Closest, usize)> {
+        let p = x(s.node);
+        let mut best: Option<(f64, f64, Closest, usize)> = None;
+        for &t in &s.targets {
+            let (d, sd, kind) = point_triangle(p, self.coords(t, x));
+            // the closest; on a tie (a node above a shared edge or vertex), a face type first
+            let better = match best {
+                None => true,
+                Some(b) => {
+                    let tie = (d - b.0).abs() <= 1e-12 * d.max(b.0);
+                    if tie {
+                        kind == Closest::Face && b.2 != Closest::Face
+                    } else {
+                        d < b.0
+                    }
+                }
+            };
+            if better {
+                best = Some((d, sd, kind, t));
+            }
+        }
+        best
+    }
+
+    /// The smallest distance of any slave node to its target surface (∞ without slaves).
+    pub fn min_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
+        self.slaves.iter().filter_map(|s| self.closest(s, x)).map(|c| if c.2 == Closest::Face { c.1 } else { c.0 }).fold(f64::INFINITY, f64::min)
+    }
+
+    /// Every slave within the barrier's reach: its energy, force and (with `hessian`) tangent.
+    /// Err if a node has crossed (or touches) the face of its closest triangle.
+    pub fn terms(&self, x: &impl Fn(usize) -> [f64; 3], want_hessian: bool) -> Result<(Vec<SlaveTerm>, f64), Penetration> {
+        let mut out = Vec::new();
+        let mut min_gap = f64::INFINITY;
+        for s in &self.slaves {
+            let Some((d, sd, kind, t)) = self.closest(s, x) else { continue };
+            let gap = if kind == Closest::Face { sd } else { d };
+            min_gap = min_gap.min(gap);
+            if !(gap > 0.0) {
+                return Err(Penetration { node: s.node });
+            }
+            if gap >= self.barrier.dhat || s.weight == 0.0 {
+                continue;
+            }
+            let (b, b1, b2) = self.barrier.eval(gap);
+            let kw = self.barrier.kappa * s.weight;
+            let tri = &self.triangles[t];
+            let tc = self.coords(t, x);
+            let p = x(s.node);
+            let mut v = SVector::<f64, 12>::zeros();
+            for c in 0..3 {
+                v[c] = p[c];
+                for k in 0..3 {
+                    v[3 + 3 * k + c] = tc[k][c];
+                }
+            }
+            let (_, g, h) = hessian(
+                |y: SVector<Dual2SVec64<12>, 12>| {
+                    let pt = [y[0], y[1], y[2]];
+                    let tt = [[y[3], y[4], y[5]], [y[6], y[7], y[8]], [y[9], y[10], y[11]]];
+                    typed_distance(pt, tt, kind)
+                },
+                &v,
+            );
+            // local slots: slave, then the mesh-node vertices (fixed vertices drop out)
+            let mut nodes = vec![s.node];
+            let mut slot = vec![0usize];
+            for (k, vert) in tri.iter().enumerate() {
+                if let Vertex::Node(n) = vert {
+                    nodes.push(*n);
+                    slot.push(1 + k);
+                }
+            }
+            let m = nodes.len();
+            let mut force = vec![0.0; 3 * m];
+            for (a, &sa) in slot.iter().enumerate() {
+                for c in 0..3 {
+                    force[3 * a + c] = kw * b1 * g[3 * sa + c];
+                }
+            }
+            let mut hess = Vec::new();
+            if want_hessian {
+                hess = vec![0.0; 9 * m * m];
+                for (a, &sa) in slot.iter().enumerate() {
+                    for ci in 0..3 {
+                        let i = 3 * sa + ci;
+                        for (bb, &sb) in slot.iter().enumerate() {
+                            for cj in 0..3 {
+                                let j = 3 * sb + cj;
+                                hess[(3 * a + ci) * 3 * m + 3 * bb + cj] = kw * (b2 * g[i] * g[j] + b1 * h[(i, j)]);
+                            }
+                        }
+                    }
+                }
+            }
+            out.push(SlaveTerm { gap, energy: kw * b, nodes, force, hessian: hess });
+        }
+        Ok((out, min_gap))
+    }
+}
+
+/// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
+pub fn nodal_areas(mesh: &Mesh, faces: &[Face]) -> Vec<(usize, f64)> {
+    let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
+    for f in faces {
+        let nodes = mesh.face_nodes(*f);
+        let rule = FaceRule::new(nodes.len(), 3);
+        for (q, w) in rule.weights.iter().enumerate() {
+            let mut ts = [[0.0; 3]; 2];
+            for (a, &n) in nodes.iter().enumerate() {
+                for d in 0..2 {
+                    for c in 0..3 {
+                        ts[d][c] += rule.dn[q][a][d] * mesh.nodes[n][c];
+                    }
+                }
+            }
+            let da = dot(cross(ts[0], ts[1]), cross(ts[0], ts[1])).sqrt() * w;
+            for (a, &n) in nodes.iter().enumerate() {
+                *acc.entry(n).or_insert(0.0) += rule.n[q][a] * da;
+            }
+        }
+    }
+    acc.into_iter().collect()
+}
+
+/// The triangles of a face on its node grid: 2 for a 4-node face, 8 for a 9-node one (4 sub-quads
+/// around the centre), oriented with the face's outward normal. 8-node faces are not supported.
+pub fn face_triangles(mesh: &Mesh, f: Face) -> Vec<Triangle> {
+    let n = mesh.face_nodes(f);
+    let quads: Vec<[usize; 4]> = match n.len() {
+        4 => vec![[0, 1, 2, 3]],
+        9 => vec![[0, 4, 8, 7], [4, 1, 5, 8], [8, 5, 2, 6], [7, 8, 6, 3]],
+        k => panic!("face_triangles: {k}-node faces are not supported"),
+    };
+    let v = |i: usize| Vertex::Node(n[i]);
+    quads.iter().flat_map(|q| [[v(q[0]), v(q[1]), v(q[2])], [v(q[0]), v(q[2]), v(q[3])]]).collect()
+}
+
+/// A fixed plane obstacle through `point` with unit normal `normal` (pointing to the slaves),
+/// as two triangles covering the square of half-size `half` around `point`.
+pub fn plane_obstacle(point: [f64; 3], normal: [f64; 3], half: f64) -> Vec<Triangle> {
+    // two tangents t1, t2 with t1 × t2 = n
+    let a = if normal[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let t1 = cross(a, normal);
+    let l = dot(t1, t1).sqrt();
+    let t1 = [t1[0] / l, t1[1] / l, t1[2] / l];
+    let t2 = cross(normal, t1);
+    let at = |s: f64, t: f64| Vertex::Fixed([point[0] + half * (s * t1[0] + t * t2[0]), point[1] + half * (s * t1[1] + t * t2[1]), point[2] + half * (s * t1[2] + t * t2[2])]);
+    let (p0, p1, p2, p3) = (at(-1.0, -1.0), at(1.0, -1.0), at(1.0, 1.0), at(-1.0, 1.0));
+    vec![[p0, p1, p2], [p0, p2, p3]]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn barrier_derivatives_match_differences() {
+        let b = Barrier { dhat: 1e-2, kappa: 3.0 };
+        for d in [1e-5, 1e-4, 3e-3, 9.9e-3] {
+            let h = 1e-7 * d;
+            let (_, b1, b2) = b.eval(d);
+            let fd1 = (b.eval(d + h).0 - b.eval(d - h).0) / (2.0 * h);
+            let fd2 = (b.eval(d + h).1 - b.eval(d - h).1) / (2.0 * h);
+            assert!((fd1 - b1).abs() <= 1e-6 * b1.abs(), "{d}: {fd1} vs {b1}");
+            assert!((fd2 - b2).abs() <= 1e-6 * b2.abs(), "{d}: {fd2} vs {b2}");
+        }
+        assert_eq!(b.eval(2e-2), (0.0, 0.0, 0.0));
+        let g = b.gap_at_pressure(0.5);
+        assert!((b.pressure(g) - 0.5).abs() < 1e-10);
+    }
+
+    #[test]
+    fn point_triangle_types_and_distances() {
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let (d, s, k) = point_triangle([0.2, 0.2, 0.5], t);
+        assert_eq!(k, Closest::Face);
+        assert!((d - 0.5).abs() < 1e-15 && (s - 0.5).abs() < 1e-15);
+        let (_, s, _) = point_triangle([0.2, 0.2, -0.5], t);
+        assert!((s + 0.5).abs() < 1e-15);
+        let (d, _, k) = point_triangle([0.5, -1.0, 0.0], t);
+        assert_eq!(k, Closest::Edge(0));
+        assert!((d - 1.0).abs() < 1e-15);
+        let (d, _, k) = point_triangle([-1.0, -1.0, 1.0], t);
+        assert_eq!(k, Closest::Vertex(0));
+        assert!((d - 3f64.sqrt()).abs() < 1e-15);
+        // the typed distances agree with the classified ones
+        for p in [[0.2, 0.2, 0.5], [0.5, -1.0, 0.3], [-1.0, -1.0, 1.0], [2.0, 2.0, 0.1]] {
+            let (d, s, k) = point_triangle(p, t);
+            let td = typed_distance(p, t, k);
+            assert!((td - if k == Closest::Face { s } else { d }).abs() < 1e-14, "{p:?}");
+        }
+    }
+
+    #[test]
+    fn slave_force_and_hessian_match_differences() {
+        // a deformable triangle and a slave node above it: force = ∂E/∂x, Hessian = ∂f/∂x
+        let mut x = vec![[0.0, 0.0, 0.0], [1.0, 0.1, 0.05], [0.1, 1.0, -0.02], [0.3, 0.25, 0.0135]];
+        let c = Contact {
+            barrier: Barrier { dhat: 0.01, kappa: 2.0 },
+            triangles: vec![[Vertex::Node(0), Vertex::Node(1), Vertex::Node(2)], [Vertex::Node(1), Vertex::Fixed([2.0, 2.0, 0.0]), Vertex::Node(2)]],
+            slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
+        };
+        c.validate(4).unwrap();
+        for (p, kind) in [([0.3, 0.25, 0.0135], Closest::Face), ([0.5, 0.045, 0.027], Closest::Edge(0)), ([-0.004, -0.003, 0.002], Closest::Vertex(0))] {
+            x[3] = p;
+            assert_eq!(c.closest(&c.slaves[0], &|n| x[n]).map(|b| (b.2, b.3)), Some((kind, 0)), "{p:?}");
+            let energy = |x: &Vec<[f64; 3]>| c.terms(&|n| x[n], false).unwrap().0.iter().map(|t| t.energy).sum::<f64>();
+            let (terms, _) = c.terms(&|n| x[n], true).unwrap();
+            assert_eq!(terms.len(), 1);
+            let t = &terms[0];
+            let m = t.nodes.len();
+            for a in 0..m {
+                for ci in 0..3 {
+                    let h = 1e-8;
+                    let mut xp = x.clone();
+                    xp[t.nodes[a]][ci] += h;
+                    let mut xm = x.clone();
+                    xm[t.nodes[a]][ci] -= h;
+                    let fd = (energy(&xp) - energy(&xm)) / (2.0 * h);
+                    let f = t.force[3 * a + ci];
+                    assert!((fd - f).abs() <= 1e-6 * f.abs().max(1e-3), "{p:?} force {a},{ci}: {fd} vs {f}");
+                    let fp = &c.terms(&|n| xp[n], false).unwrap().0[0].force;
+                    let fm = &c.terms(&|n| xm[n], false).unwrap().0[0].force;
+                    for r in 0..3 * m {
+                        let fdh = (fp[r] - fm[r]) / (2.0 * h);
+                        let hv = t.hessian[r * 3 * m + 3 * a + ci];
+                        assert!((fdh - hv).abs() <= 1e-5 * hv.abs().max(1e-1), "{p:?} hessian {r},{a},{ci}: {fdh} vs {hv}");
+                    }
+                }
+            }
+        }
+        // behind the face: not admissible
+        x[3] = [0.3, 0.25, 0.008];
+        assert_eq!(c.terms(&|n| x[n], false).unwrap_err(), Penetration { node: 3 });
+    }
+}

@@ -370,6 +370,13 @@ impl SceneFields {
 
 impl SceneModel {
     pub fn build(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind) -> Result<SceneModel, SceneError> {
+        Self::build_perturbed(geom, opts, kind, None)
+    }
+
+    /// [`SceneModel::build`] with the mesh's reference nodes moved by `offset` (one vector per
+    /// node): a geometric imperfection, e.g. a small multiple of a buckling mode, that turns a
+    /// bifurcation of the perfect geometry into a smooth path.
+    pub fn build_perturbed(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind, offset: Option<&[[f64; 3]]>) -> Result<SceneModel, SceneError> {
         if let Some(why) = opts.rom.as_ref().and_then(|_| crate::rom::outside_box(&opts.rom_box, &geom.design)) {
             return Err(SceneError::OutsideRom(why));
         }
@@ -379,7 +386,17 @@ impl SceneModel {
             }
         }
         let spec = opts.mesh.with_sector(opts.sector).with_kind(opts.formulation.kind);
-        let am = build_mesh(geom, &spec)?;
+        let mut am = build_mesh(geom, &spec)?;
+        if let Some(off) = offset {
+            if off.len() != am.mesh.nodes.len() {
+                return Err(SceneError::Model(twistopt_solver::model::ModelError::Mesh(format!("imperfection of {} nodes for a mesh of {}", off.len(), am.mesh.nodes.len()))));
+            }
+            for (x, d) in am.mesh.nodes.iter_mut().zip(off) {
+                for c in 0..3 {
+                    x[c] += d[c];
+                }
+            }
+        }
         let mesh = am.mesh.clone();
         let mut cons = Constraints::default();
         cons.prescribe_set(&mesh.node_sets["bottom"], &[0, 1, 2], 0.0);

@@ -1,31 +1,40 @@
 //! Frictionless contact by a smooth log barrier (the barrier of IPC, Li et al., SIGGRAPH 2020).
 //!
-//! A *slave* node i carries the energy κ wᵢ b(dᵢ), with
+//! A *slave* node i carries the energy κ wᵢ b(dᵢ) g(Bᵢ), with
 //!
-//! * dᵢ the distance from the node to its *target surface*, a set of triangles (the contact
-//!   surface of another part, or the other side of the same cavity, or a fixed obstacle): the
-//!   distance to the closest candidate triangle, of the IPC type of its closest point (face
-//!   interior, edge or vertex), so that a node above a shared edge or vertex is counted once and
-//!   dᵢ is continuous and, on a smooth surface, continuously differentiable;
+//! * dᵢ the node's distance to its *target surface*, a set of triangles (the contact surface of
+//!   another part, the other side of the same cavity, a neighbouring sector's copy of it, or a
+//!   fixed obstacle), **blended** over the triangles near the node: dᵢ = Σ w_t d_t / Σ w_t with
+//!   d_t the signed distance to triangle t's plane and w_t = Π_edges S(e/ε + ½)·C(d_t), e the
+//!   in-plane distance of the node's projection from the edge (positive inside), S the C² smooth
+//!   step and ε the blend width ([`Contact::blend`]); C drops triangles farther than 2–3 d̂.
+//!   Inside a triangle, away from its edges, dᵢ is that triangle's plane distance; across an
+//!   edge shared by two coplanar triangles the weights sum to 1, so on a flat surface dᵢ is
+//!   exactly the distance; across a crease it blends the two planes' distances smoothly. (The
+//!   distance to the closest triangle instead has a gradient jump over every concave crease,
+//!   on which Newton stalls: measured in tests/contact_block.rs.);
 //! * b(d) = −(d − d̂)² ln(d/d̂) for d < d̂ and 0 beyond (`ipc-toolkit` src/ipc/barrier/barrier.cpp),
 //!   C² at d̂ and unbounded as d → 0;
+//! * g(B) = 1 for Bᵢ = Σ w_t ≥ 1 (inside a surface) and 3B² − 2B³ below, which fades the contact
+//!   out beyond a surface's free edge;
 //! * wᵢ the node's consistent reference area ∫ Nᵢ dA over the slave faces ([`nodal_areas`]), so
 //!   that equal gaps carry the consistent nodal loads of a uniform contact pressure κ·|b'(d)| and
 //!   the contact pressure does not depend on the mesh.
 //!
-//! The energy's gradient is the contact force and its Hessian (the exact one, not projected: the
-//! Newton solves and the adjoint see the same tangent) is κ w (b'' ∇d ∇dᵀ + b' ∇²d), with ∇d and
-//! ∇²d of the node and the target triangle's vertices from second-order dual numbers.
+//! The energy's gradient is the contact force and its Hessian is the exact one (not projected:
+//! the Newton solves and the adjoint see the same tangent), from second-order dual numbers of
+//! each triangle's (d_t, w_t) in the node and the triangle's vertices, combined by the quotient
+//! rule.
 //!
-//! A state where a node lies behind the face of its closest target triangle (signed distance
-//! ≤ 0 over the face interior) or touches it is not admissible: the assembly reports
-//! [`crate::element::ElementError::Penetration`], which the Newton line search treats like an
-//! inverted element (the step is cut). A node that crosses a target surface across an edge in
-//! one step is not detected (no continuous collision detection yet): steps are small compared
-//! with the barrier's reach where this matters.
+//! A state where a node has reached or crossed its target surface (dᵢ ≤ 0) is not admissible:
+//! the assembly reports [`crate::element::ElementError::Penetration`], which the Newton line
+//! search treats like an inverted element (the step is cut). A node that tunnels through a target
+//! surface by more than 2–3 d̂ in one step is not detected (no continuous collision detection
+//! yet).
 //!
 //! Hex27 (and Hex8) faces enter as triangles on their node grid ([`face_triangles`]), oriented
-//! with the face's outward normal.
+//! with the face's outward normal; a cyclic sector's neighbours as rotated copies
+//! ([`Vertex::Rotated`]).
 
 use crate::mesh::{Face, Mesh};
 use crate::scalar::{cross, dot, Scalar};
@@ -74,11 +83,34 @@ impl Barrier {
     }
 }
 
-/// A triangle vertex: a mesh node (moves with the model) or a fixed point (a rigid obstacle).
+/// A triangle vertex: a mesh node (moves with the model), a fixed point (a rigid obstacle), or
+/// a node's copy rotated about the z axis by `angle` (rad): the neighbouring sector of a
+/// cyclically symmetric model, whose displacement is the rotated displacement of the modelled one.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Vertex {
     Node(usize),
     Fixed([f64; 3]),
+    Rotated { node: usize, angle: f64 },
+}
+
+impl Vertex {
+    /// The mesh node the vertex follows, if any.
+    pub fn node(&self) -> Option<usize> {
+        match *self {
+            Vertex::Node(n) | Vertex::Rotated { node: n, .. } => Some(n),
+            Vertex::Fixed(_) => None,
+        }
+    }
+}
+
+/// The rotation about z by `angle`.
+pub fn rot_z(angle: f64) -> [[f64; 3]; 3] {
+    let (s, c) = angle.sin_cos();
+    [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+}
+
+fn apply(m: &[[f64; 3]; 3], p: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2])
 }
 
 /// A target triangle; its normal (b − a) × (c − a) points to the side slave nodes come from.
@@ -97,6 +129,9 @@ pub struct Slave {
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Contact {
     pub barrier: Barrier,
+    /// the width ε of the band around each triangle edge over which neighbouring triangles'
+    /// distances are blended (a length; [`Contact::default_blend`])
+    pub blend: f64,
     pub triangles: Vec<Triangle>,
     pub slaves: Vec<Slave>,
 }
@@ -206,9 +241,12 @@ impl Contact {
         if !(self.barrier.dhat > 0.0 && self.barrier.dhat.is_finite()) || !(self.barrier.kappa > 0.0 && self.barrier.kappa.is_finite()) {
             return Err(format!("contact barrier needs d̂ > 0 and κ > 0 (got d̂ = {}, κ = {})", self.barrier.dhat, self.barrier.kappa));
         }
+        if !(self.blend > 0.0 && self.blend.is_finite()) {
+            return Err(format!("contact blend width must be > 0 (got {})", self.blend));
+        }
         for (k, t) in self.triangles.iter().enumerate() {
             for v in t {
-                if let Vertex::Node(n) = v {
+                if let Some(n) = &v.node() {
                     if *n >= n_nodes {
                         return Err(format!("contact triangle {k} refers to node {n} of {n_nodes}"));
                     }
@@ -240,8 +278,8 @@ impl Contact {
                 let mut g = vec![s.node];
                 for &t in &s.targets {
                     for v in &self.triangles[t] {
-                        if let Vertex::Node(n) = v {
-                            g.push(*n);
+                        if let Some(n) = v.node() {
+                            g.push(n);
                         }
                     }
                 }
@@ -257,6 +295,7 @@ impl Contact {
         [0, 1, 2].map(|k| match tri[k] {
             Vertex::Node(n) => x(n),
             Vertex::Fixed(p) => p,
+            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x(node)),
         })
     }
 
@@ -286,81 +325,258 @@ impl Contact {
         best
     }
 
-    /// The smallest distance of any slave node to its target surface (∞ without slaves).
+    /// A slave's blended distance to its target surface (None where no target triangle's
+    /// blend weight reaches it).
+    pub fn blended_gap(&self, s: &Slave, x: &impl Fn(usize) -> [f64; 3]) -> Option<f64> {
+        let p = x(s.node);
+        let (mut sa, mut sb) = (0.0, 0.0);
+        for &t in &s.targets {
+            let (d, w) = blend_terms(p, self.coords(t, x), self.blend, self.barrier.dhat);
+            sa += w * d;
+            sb += w;
+        }
+        (sb > 0.0).then(|| sa / sb)
+    }
+
+    /// The smallest blended distance of any slave node to its target surface (∞ without slaves
+    /// within a triangle's reach).
     pub fn min_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
-        self.slaves.iter().filter_map(|s| self.closest(s, x)).map(|c| if c.2 == Closest::Face { c.1 } else { c.0 }).fold(f64::INFINITY, f64::min)
+        self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(f64::INFINITY, f64::min)
+    }
+
+    /// A blend width for a target mesh: a tenth of its shortest triangle edge (reference
+    /// positions `x0`; fixed vertices as they are).
+    pub fn default_blend(triangles: &[Triangle], x0: &[[f64; 3]]) -> f64 {
+        let pos = |v: &Vertex| match *v {
+            Vertex::Node(n) => x0[n],
+            Vertex::Fixed(p) => p,
+            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x0[node]),
+        };
+        let mut hmin = f64::INFINITY;
+        for t in triangles {
+            for i in 0..3 {
+                let (a, b) = (pos(&t[i]), pos(&t[(i + 1) % 3]));
+                hmin = hmin.min(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt());
+            }
+        }
+        0.1 * hmin
     }
 
     /// Every slave within the barrier's reach: its energy, force and (with `hessian`) tangent.
-    /// Err if a node has crossed (or touches) the face of its closest triangle.
+    /// Err if a node has reached or crossed its target surface (blended distance ≤ 0).
     pub fn terms(&self, x: &impl Fn(usize) -> [f64; 3], want_hessian: bool) -> Result<(Vec<SlaveTerm>, f64), Penetration> {
         let mut out = Vec::new();
         let mut min_gap = f64::INFINITY;
+        let dh = self.barrier.dhat;
+        let eps = self.blend;
         for s in &self.slaves {
-            let Some((d, sd, kind, t)) = self.closest(s, x) else { continue };
-            let gap = if kind == Closest::Face { sd } else { d };
+            let p = x(s.node);
+            // the triangles whose blend weight is not zero, with their plane distance
+            let mut act: Vec<(usize, [[f64; 3]; 3])> = Vec::new();
+            let (mut sa, mut sb) = (0.0, 0.0);
+            for &t in &s.targets {
+                let tc = self.coords(t, x);
+                let (d, w) = blend_terms(p, tc, eps, dh);
+                if w > 0.0 {
+                    sa += w * d;
+                    sb += w;
+                    act.push((t, tc));
+                }
+            }
+            if act.is_empty() {
+                continue;
+            }
+            let gap = sa / sb;
             min_gap = min_gap.min(gap);
             if !(gap > 0.0) {
                 return Err(Penetration { node: s.node });
             }
-            if gap >= self.barrier.dhat || s.weight == 0.0 {
+            if gap >= dh || s.weight == 0.0 {
                 continue;
             }
-            let (b, b1, b2) = self.barrier.eval(gap);
-            let kw = self.barrier.kappa * s.weight;
-            let tri = &self.triangles[t];
-            let tc = self.coords(t, x);
-            let p = x(s.node);
-            let mut v = SVector::<f64, 12>::zeros();
-            for c in 0..3 {
-                v[c] = p[c];
-                for k in 0..3 {
-                    v[3 + 3 * k + c] = tc[k][c];
-                }
-            }
-            let (_, g, h) = hessian(
-                |y: SVector<Dual2SVec64<12>, 12>| {
-                    let pt = [y[0], y[1], y[2]];
-                    let tt = [[y[3], y[4], y[5]], [y[6], y[7], y[8]], [y[9], y[10], y[11]]];
-                    typed_distance(pt, tt, kind)
-                },
-                &v,
-            );
-            // local slots: slave, then the mesh-node vertices (fixed vertices drop out)
+            // local slots: the slave, then each vertex that follows a mesh node (fixed ones drop
+            // out), with ∂y/∂x of its node (I, or the rotation of a rotated copy)
+            const I3: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
             let mut nodes = vec![s.node];
-            let mut slot = vec![0usize];
-            for (k, vert) in tri.iter().enumerate() {
-                if let Vertex::Node(n) = vert {
-                    nodes.push(*n);
-                    slot.push(1 + k);
+            let mut mats = vec![I3];
+            let mut keys: Vec<(usize, u64)> = vec![(s.node, 0.0f64.to_bits())];
+            let mut tri_slots: Vec<[Option<usize>; 3]> = Vec::new();
+            for (t, _) in &act {
+                let mut sl = [None; 3];
+                for (k, vert) in self.triangles[*t].iter().enumerate() {
+                    let (n, ang) = match *vert {
+                        Vertex::Node(n) => (n, 0.0f64),
+                        Vertex::Rotated { node, angle } => (node, angle),
+                        Vertex::Fixed(_) => continue,
+                    };
+                    let key = (n, ang.to_bits());
+                    let idx = match keys.iter().position(|k| *k == key) {
+                        Some(i) => i,
+                        None => {
+                            keys.push(key);
+                            nodes.push(n);
+                            mats.push(if ang == 0.0 { I3 } else { rot_z(ang) });
+                            keys.len() - 1
+                        }
+                    };
+                    sl[k] = Some(idx);
                 }
+                tri_slots.push(sl);
             }
             let m = nodes.len();
-            let mut force = vec![0.0; 3 * m];
-            for (a, &sa) in slot.iter().enumerate() {
+            let nv = 3 * m;
+            // Σ w_t d_t, Σ w_t and their first and second derivatives in the vertex positions y
+            // (slot 0 the slave; then the slots above)
+            let mut ga = vec![0.0; nv];
+            let mut gb = vec![0.0; nv];
+            let mut ha = if want_hessian { vec![0.0; nv * nv] } else { Vec::new() };
+            let mut hb = if want_hessian { vec![0.0; nv * nv] } else { Vec::new() };
+            for ((_, tc), sl) in act.iter().zip(&tri_slots) {
+                let mut v = SVector::<f64, 12>::zeros();
                 for c in 0..3 {
-                    force[3 * a + c] = kw * b1 * g[3 * sa + c];
+                    v[c] = p[c];
+                    for k in 0..3 {
+                        v[3 + 3 * k + c] = tc[k][c];
+                    }
                 }
-            }
-            let mut hess = Vec::new();
-            if want_hessian {
-                hess = vec![0.0; 9 * m * m];
-                for (a, &sa) in slot.iter().enumerate() {
-                    for ci in 0..3 {
-                        let i = 3 * sa + ci;
-                        for (bb, &sb) in slot.iter().enumerate() {
-                            for cj in 0..3 {
-                                let j = 3 * sb + cj;
-                                hess[(3 * a + ci) * 3 * m + 3 * bb + cj] = kw * (b2 * g[i] * g[j] + b1 * h[(i, j)]);
+                let f = |y: &SVector<Dual2SVec64<12>, 12>| {
+                    let pt = [y[0], y[1], y[2]];
+                    let tt = [[y[3], y[4], y[5]], [y[6], y[7], y[8]], [y[9], y[10], y[11]]];
+                    blend_terms_generic(pt, tt, eps, dh)
+                };
+                let (_, gd, hd) = hessian(|y: SVector<Dual2SVec64<12>, 12>| f(&y).0, &v);
+                let (w, gw, hw) = hessian(|y: SVector<Dual2SVec64<12>, 12>| f(&y).1, &v);
+                let d = typed_distance(p, *tc, Closest::Face);
+                // local variable i of the triangle → (slot, rotation)
+                let slot_of = |i: usize| -> Option<usize> {
+                    if i < 3 {
+                        Some(0)
+                    } else {
+                        sl[(i - 3) / 3]
+                    }
+                };
+                // map a 12-vector of y-derivatives into the local x-derivatives: x = M y-part
+                let add_vec = |dst: &mut [f64], g: &dyn Fn(usize) -> f64, scale: f64| {
+                    for blk in 0..4 {
+                        let Some(sl_i) = slot_of(3 * blk) else { continue };
+                        let mt = &mats[sl_i];
+                        for c in 0..3 {
+                            let mut acc = 0.0;
+                            for r in 0..3 {
+                                acc += mt[r][c] * g(3 * blk + r);
+                            }
+                            dst[3 * sl_i + c] += scale * acc;
+                        }
+                    }
+                };
+                add_vec(&mut ga, &|i| d * gw[i] + w * gd[i], 1.0);
+                add_vec(&mut gb, &|i| gw[i], 1.0);
+                if want_hessian {
+                    for bi in 0..4 {
+                        let Some(si) = slot_of(3 * bi) else { continue };
+                        for bj in 0..4 {
+                            let Some(sj) = slot_of(3 * bj) else { continue };
+                            let (mi, mj) = (&mats[si], &mats[sj]);
+                            for ci in 0..3 {
+                                for cj in 0..3 {
+                                    let (mut va, mut vb) = (0.0, 0.0);
+                                    for r in 0..3 {
+                                        for q in 0..3 {
+                                            let (i, j) = (3 * bi + r, 3 * bj + q);
+                                            let hw_ij = hw[(i, j)];
+                                            let a_ij = d * hw_ij + gw[i] * gd[j] + gd[i] * gw[j] + w * hd[(i, j)];
+                                            let c = mi[r][ci] * mj[q][cj];
+                                            va += c * a_ij;
+                                            vb += c * hw_ij;
+                                        }
+                                    }
+                                    ha[(3 * si + ci) * nv + 3 * sj + cj] += va;
+                                    hb[(3 * si + ci) * nv + 3 * sj + cj] += vb;
+                                }
                             }
                         }
                     }
                 }
             }
-            out.push(SlaveTerm { gap, energy: kw * b, nodes, force, hessian: hess });
+            // d = A/B; the energy κ w b(d) g(B), g fading the contact out beyond a surface's edge
+            let (bsum, asum) = (sb, sa);
+            let gd: Vec<f64> = (0..nv).map(|i| (ga[i] - gap * gb[i]) / bsum).collect();
+            let (g, g1, g2) = fade(bsum);
+            let (b, b1, b2) = self.barrier.eval(gap);
+            let _ = asum;
+            let kw = self.barrier.kappa * s.weight;
+            let force: Vec<f64> = (0..nv).map(|i| kw * (b1 * g * gd[i] + b * g1 * gb[i])).collect();
+            let mut hess = Vec::new();
+            if want_hessian {
+                hess = vec![0.0; nv * nv];
+                for i in 0..nv {
+                    for j in 0..nv {
+                        // ∇²d = (∇²A − d ∇²B − ∇d ∇Bᵀ − ∇B ∇dᵀ) / B
+                        let hdij = (ha[i * nv + j] - gap * hb[i * nv + j] - gd[i] * gb[j] - gb[i] * gd[j]) / bsum;
+                        hess[i * nv + j] = kw * (b2 * g * gd[i] * gd[j] + b1 * g * hdij + b1 * g1 * (gd[i] * gb[j] + gb[i] * gd[j]) + b * g2 * gb[i] * gb[j] + b * g1 * hb[i * nv + j]);
+                    }
+                }
+            }
+            out.push(SlaveTerm { gap, energy: kw * b * g, nodes, force, hessian: hess });
         }
         Ok((out, min_gap))
     }
+}
+
+/// The C² smooth step: 0 for x ≤ 0, 1 for x ≥ 1, x³(10 − 15x + 6x²) between (h(1 − x) = 1 − h(x)).
+fn smoothstep<D: Scalar>(x: D) -> D {
+    let xr = x.re();
+    if xr <= 0.0 {
+        D::zero()
+    } else if xr >= 1.0 {
+        D::one()
+    } else {
+        x * x * x * (D::from(10.0) - x * D::from(15.0) + x * x * D::from(6.0))
+    }
+}
+
+/// The contact fade g(B) of the blend weights' sum: 1 for B ≥ 1 (inside a surface, where the
+/// weights sum to at least 1), 3B² − 2B³ below (beyond a surface's free edge); (g, g', g'').
+fn fade(b: f64) -> (f64, f64, f64) {
+    if b >= 1.0 {
+        (1.0, 0.0, 0.0)
+    } else {
+        (3.0 * b * b - 2.0 * b * b * b, 6.0 * b - 6.0 * b * b, 6.0 - 12.0 * b)
+    }
+}
+
+/// A triangle's share of a slave's blended distance, generic in the scalar: (d, w) with d the
+/// signed distance to the triangle's plane and w = Π S(eᵢ/ε + ½) · C(d) its weight, eᵢ the
+/// in-plane distance of the projected point from edge i (positive inside), S the smooth step
+/// (so that across an edge shared by two coplanar triangles the weights sum to 1), and C a cutoff
+/// that drops triangles farther than 2–3 d̂ from the point (either side).
+pub fn blend_terms_generic<D: Scalar>(p: [D; 3], t: [[D; 3]; 3], eps: f64, dhat: f64) -> (D, D) {
+    let sub = |u: [D; 3], v: [D; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
+    let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
+    let nn = dot(n, n).sqrt();
+    let nh = [n[0] / nn, n[1] / nn, n[2] / nn];
+    let d = dot(nh, sub(p, t[0]));
+    let mut w = D::one();
+    for i in 0..3 {
+        let (a, b) = (t[i], t[(i + 1) % 3]);
+        let e = sub(b, a);
+        let el = dot(e, e).sqrt();
+        // in-plane inward normal of edge i: n̂ × ê
+        let m = cross(nh, [e[0] / el, e[1] / el, e[2] / el]);
+        let ei = dot(m, sub(p, a));
+        w = w * smoothstep(ei / eps + D::from(0.5));
+        if w.re() == 0.0 {
+            return (d, D::zero());
+        }
+    }
+    // cutoff in |d| over [2 d̂, 3 d̂]
+    let ad = if d.re() < 0.0 { -d } else { d };
+    let c = D::one() - smoothstep(ad / dhat - D::from(2.0));
+    (d, w * c)
+}
+
+fn blend_terms(p: [f64; 3], t: [[f64; 3]; 3], eps: f64, dhat: f64) -> (f64, f64) {
+    blend_terms_generic(p, t, eps, dhat)
 }
 
 /// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
@@ -459,13 +675,20 @@ mod tests {
     #[test]
     fn slave_force_and_hessian_match_differences() {
         // a deformable triangle and a slave node above it: force = ∂E/∂x, Hessian = ∂f/∂x
-        let mut x = vec![[0.0, 0.0, 0.0], [1.0, 0.1, 0.05], [0.1, 1.0, -0.02], [0.3, 0.25, 0.0135]];
+        // node 4 is node 1's position rotated back by 0.3 rad: its copy rotated by 0.3 is vertex 1
+        let r = rot_z(-0.3);
+        let x1 = [1.0, 0.1, 0.05];
+        let mut x = vec![[0.0, 0.0, 0.0], [9.0, 9.0, 9.0], [0.1, 1.0, -0.02], [0.3, 0.25, 0.0135], apply(&r, x1)];
         let c = Contact {
             barrier: Barrier { dhat: 0.01, kappa: 2.0 },
-            triangles: vec![[Vertex::Node(0), Vertex::Node(1), Vertex::Node(2)], [Vertex::Node(1), Vertex::Fixed([2.0, 2.0, 0.0]), Vertex::Node(2)]],
+            blend: 0.05,
+            triangles: vec![
+                [Vertex::Node(0), Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Node(2)],
+                [Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Fixed([2.0, 2.0, 0.0]), Vertex::Node(2)],
+            ],
             slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
         };
-        c.validate(4).unwrap();
+        c.validate(5).unwrap();
         for (p, kind) in [([0.3, 0.25, 0.0135], Closest::Face), ([0.5, 0.045, 0.027], Closest::Edge(0)), ([-0.004, -0.003, 0.002], Closest::Vertex(0))] {
             x[3] = p;
             assert_eq!(c.closest(&c.slaves[0], &|n| x[n]).map(|b| (b.2, b.3)), Some((kind, 0)), "{p:?}");

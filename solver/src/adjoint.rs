@@ -34,6 +34,8 @@ use rayon::prelude::*;
 pub enum AdjointError {
     #[error("sensitivities with periodic (helical) constraints are not implemented")]
     Periodic,
+    #[error("sensitivities through contact states are not implemented yet")]
+    Contact,
     #[error("element evaluation failed: {0}")]
     Element(#[from] ElementError),
     #[error("adjoint solve failed: {0}")]
@@ -422,6 +424,9 @@ fn partial_q(model: &Model, q: &[f64], loads: &Loads, st: &State<f64>, f: &Funct
 /// q under `loads`; `factor` is the factorisation of the reduced tangent at q (e.g. from
 /// [`crate::solve::newton_factored`] or [`crate::solve::factor_converged`]).
 pub fn sensitivities(model: &Model, q: &[f64], loads: &Loads, factor: &Factor, functionals: &[Functional], directions: &[Direction]) -> Result<Sensitivities, AdjointError> {
+    if model.contact().is_some() {
+        return Err(AdjointError::Contact);
+    }
     let inp = Inputs { x0: &model.mesh.nodes, q, pressure: loads.pressure, presc: &loads.presc, params: &model.params };
     let st = evaluate(model, &inp, loads)?;
     let mut evals = 0;
@@ -476,6 +481,9 @@ pub struct LimitSensitivity {
 /// the last converged state before the limit point, so the result approximates the derivative at
 /// the limit point to the distance of that state from it.
 pub fn limit_sensitivity(model: &Model, q: &[f64], loads: &Loads, factor: &Factor, k_values: &[f64], directions: &[Direction]) -> Result<LimitSensitivity, AdjointError> {
+    if model.contact().is_some() {
+        return Err(AdjointError::Contact);
+    }
     let phi = factor.inverse_iteration(8).map_err(|e| match e {
         SolveError::NonFinite => AdjointError::NonFinite(0),
         e => e.into(),

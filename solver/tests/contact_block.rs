@@ -304,3 +304,15 @@ fn tangent_matches_differences(model: &Model, q: &[f64], loads: &Loads) {
     assert!(worst.0 < 1e-6, "tangent vs FD: worst relative error {:e} at ({}, {})", worst.0, worst.1, worst.2);
 }
 
+
+#[test]
+fn sensitivities_through_contact_are_refused_not_wrong() {
+    let blk = block(1000.0, Barrier { dhat: 1e-3, kappa: 20.0 }, 1.5e-3);
+    let m = &blk.model;
+    let loads = loads_with(m, &blk.top, 2, -0.01);
+    let q = vec![0.0; m.n_reduced()];
+    let a = m.assemble(&q, &loads, true).unwrap();
+    let f = m.factor_indefinite(a.k.as_ref().unwrap()).unwrap();
+    let r = twistopt_solver::adjoint::sensitivities(m, &q, &loads, &f, &[twistopt_solver::adjoint::Functional::CavityVolume], &[]);
+    assert!(matches!(r, Err(twistopt_solver::adjoint::AdjointError::Contact)));
+}

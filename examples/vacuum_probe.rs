@@ -10,7 +10,40 @@
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
 use twistopt::scene::*;
-use twistopt_solver::continuation::{follow, Control, ContinuationOptions, PathModel, PathPoint};
+use twistopt_solver::continuation::{follow, Control, ContinuationOptions, Eval, EvalFailure, PathModel, PathPoint};
+use twistopt_solver::model::SolveError;
+
+/// A path model whose control functional is the amplitude φ·q along a direction (the path then
+/// runs with the amplitude prescribed and the pressure free).
+struct Amplitude<'a, M: PathModel> {
+    inner: &'a M,
+    phi: Vec<f64>,
+}
+
+impl<'a, M: PathModel> PathModel for Amplitude<'a, M> {
+    type Matrix = M::Matrix;
+    type Factor = M::Factor;
+    fn dim(&self) -> usize {
+        self.inner.dim()
+    }
+    fn eval(&self, q: &[f64], lam: f64, tangent: bool, lin: Option<&[f64]>) -> Result<Eval<M::Matrix>, EvalFailure> {
+        let mut e = self.inner.eval(q, lam, tangent, lin)?;
+        e.control = Some((q.iter().zip(&self.phi).map(|(a, b)| a * b).sum(), self.phi.clone()));
+        Ok(e)
+    }
+    fn factor(&self, k: &M::Matrix, definite: bool) -> Result<M::Factor, SolveError> {
+        self.inner.factor(k, definite)
+    }
+    fn solve(&self, f: &M::Factor, b: &[f64]) -> Result<Vec<f64>, SolveError> {
+        self.inner.solve(f, b)
+    }
+    fn load_rate(&self, q: &[f64], lam: f64, ev: &Eval<M::Matrix>) -> Result<Vec<f64>, EvalFailure> {
+        self.inner.load_rate(q, lam, ev)
+    }
+    fn outputs(&self, q: &[f64], lam: f64, ev: &Eval<M::Matrix>) -> Vec<f64> {
+        self.inner.outputs(q, lam, ev)
+    }
+}
 
 /// The null vector of the tangent at (q, λ): inverse iteration with the indefinite factor.
 fn null_vector<M: PathModel>(m: &M, q: &[f64], lam: f64) -> Vec<f64> {
@@ -68,6 +101,18 @@ fn main() {
         let r2 = follow(&lp2, &vec![0.0; sm2.model.n_reduced()], 0.0, 1.0, &[], &[], &o2);
         println!("with the imperfection: end {:?}, {} points", r2.end, r2.points.len());
         points = r2.points;
+        if std::env::var_os("AMPLITUDE").is_some() {
+            // from the last point where the pressure still rose, on with the mode's amplitude
+            // prescribed
+            let k = points.iter().enumerate().fold((0, 0.0), |a, (i, p)| if p.lam > a.1 { (i, p.lam) } else { a }).0;
+            let start = points[k].clone();
+            let am = Amplitude { inner: &lp2, phi: phi.clone() };
+            let o3 = ContinuationOptions { start_control: Control::Functional, stop_at_instability: false, stop_at_fold: false, ..o.clone() };
+            let r3 = follow(&am, &start.q, start.lam, 1.0, &[], &[], &o3);
+            println!("amplitude control from p = {:.3} kPa: end {:?}, {} points", start.lam * p_end, r3.end, r3.points.len());
+            points.truncate(k + 1);
+            points.extend(r3.points.into_iter().skip(1));
+        }
         lpref = &lp2;
         smref = &sm2;
     }

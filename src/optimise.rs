@@ -295,27 +295,75 @@ impl OptProblem {
         let mut c: Vec<String> = self.scenes.iter().map(|k| format!("radius:{}", k.name())).collect();
         c.push("stability".into());
         if self.envelope() {
-            c.extend(envelope_heights().into_iter().map(|z| format!("envelope:z={z:.1}")));
+            for kind in ["envelope", "waist", "fold"] {
+                c.extend(envelope_heights().into_iter().map(|z| format!("{kind}:z={z:.1}")));
+            }
         }
         c
     }
 
     pub fn n_constraints(&self) -> usize {
-        self.scenes.len() + 1 + if self.envelope() { ENVELOPE_POINTS } else { 0 }
+        self.scenes.len() + 1 + if self.envelope() { SHAPE_CONSTRAINTS * ENVELOPE_POINTS } else { 0 }
     }
 
-    /// The envelope constraints (ρ(z) − R)/scale ≤ 0 at [`envelope_heights`] and their
-    /// Jacobian in the scaled variables (from the dual actuators).
+    /// The freeform shape's validity as differentiable constraints, each at the
+    /// [`envelope_heights`], with their Jacobian in the scaled variables (dual actuators):
+    ///
+    /// * envelope (ρ(z) − R)/2 mm ≤ 0: the rest radius within the tube radius;
+    /// * waist (ρ_min(r) − ρ(z))/2 mm ≤ 0, ρ_min = [`crate::geometry::l_min_waist`]: the offset
+    ///   notch walls stay apart and off the axis (its r-derivative by central differences of the
+    ///   closed form);
+    /// * fold κ₁(z)·(t + 0.5 mm) − 1 ≤ 0, κ₁(z) the largest convex principal curvature of the
+    ///   untwisted outer surface around the section at height z (240 samples; its gradient at
+    ///   the maximiser): the inward offset by t does not fold.
+    ///
+    /// The geometry refuses designs beyond these limits by a margin ([`crate::geometry::freeform_validity`]),
+    /// so that a step across a constraint can still be evaluated.
     fn envelope_of(&self, geom: &ActuatorGeometry) -> (Vec<f64>, Vec<Vec<f64>>) {
-        let duals: Vec<Option<crate::geometry::Actuator<num_dual::Dual64>>> = self.variables.iter().map(|v| if v.name == P_PRESSURE { None } else { geom.dual_actuator(&v.name).ok() }).collect();
-        envelope_heights()
-            .into_iter()
-            .map(|z| {
-                let g = (geom.act.profile.eval(z).rho - R_TUBE) / ENVELOPE_SCALE_MM;
-                let row = self.variables.iter().zip(&duals).map(|(v, a)| a.as_ref().map_or(0.0, |a| a.profile.eval(num_dual::Dual64::from(z)).rho.eps) * (v.upper - v.lower) / ENVELOPE_SCALE_MM).collect();
-                (g, row)
-            })
-            .unzip()
+        use num_dual::Dual64;
+        let duals: Vec<Option<crate::geometry::Actuator<Dual64>>> = self.variables.iter().map(|v| if v.name == P_PRESSURE { None } else { geom.dual_actuator(&v.name).ok() }).collect();
+        let span = |v: &Variable| v.upper - v.lower;
+        let heights = envelope_heights();
+        let (mut g, mut dg) = (Vec::new(), Vec::new());
+        // envelope
+        for &z in &heights {
+            g.push((geom.act.profile.eval(z).rho - R_TUBE) / ENVELOPE_SCALE_MM);
+            dg.push(self.variables.iter().zip(&duals).map(|(v, a)| a.as_ref().map_or(0.0, |a| a.profile.eval(Dual64::from(z)).rho.eps) * span(v) / ENVELOPE_SCALE_MM).collect());
+        }
+        // waist
+        let r = geom.act.section.r;
+        let need = crate::geometry::l_min_waist(r);
+        let h = 1e-6 * r;
+        let dneed = (crate::geometry::l_min_waist(r + h) - crate::geometry::l_min_waist(r - h)) / (2.0 * h);
+        for &z in &heights {
+            g.push((need - geom.act.profile.eval(z).rho) / ENVELOPE_SCALE_MM);
+            dg.push(
+                self.variables
+                    .iter()
+                    .zip(&duals)
+                    .map(|(v, a)| {
+                        let drho = a.as_ref().map_or(0.0, |a| a.profile.eval(Dual64::from(z)).rho.eps);
+                        let dr = if v.name == crate::geometry::P_R { dneed } else { 0.0 };
+                        (dr - drho) * span(v) / ENVELOPE_SCALE_MM
+                    })
+                    .collect(),
+            );
+        }
+        // fold
+        let margin = crate::geometry::T_WALL + 0.5;
+        for &z in &heights {
+            let (mut kmax, mut smax) = (f64::NEG_INFINITY, 0.0);
+            for i in 0..FOLD_SAMPLES {
+                let shat = i as f64 / FOLD_SAMPLES as f64;
+                let k1 = geom.act.principal_curvatures0(shat, z).0;
+                if k1 > kmax {
+                    (kmax, smax) = (k1, shat);
+                }
+            }
+            g.push(kmax * margin - 1.0);
+            dg.push(self.variables.iter().zip(&duals).map(|(v, a)| a.as_ref().map_or(0.0, |a| a.principal_curvatures0(Dual64::from(smax), Dual64::from(z)).0.eps) * margin * span(v)).collect());
+        }
+        (g, dg)
     }
 
     /// [`OptProblem::envelope_of`] at scaled variables x (None where the geometry cannot be built).
@@ -957,6 +1005,10 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
 pub const ENVELOPE_POINTS: usize = 19;
 /// The envelope constraints' scale: (ρ − R)/scale ≤ 0 (mm).
 const ENVELOPE_SCALE_MM: f64 = 2.0;
+/// The kinds of shape constraints at each of the [`envelope_heights`]: envelope, waist, fold.
+pub const SHAPE_CONSTRAINTS: usize = 3;
+/// Samples around the section for the fold constraint's largest convex curvature.
+const FOLD_SAMPLES: usize = 240;
 
 /// The interior heights of the envelope constraints (mm).
 pub fn envelope_heights() -> Vec<f64> {

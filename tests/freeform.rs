@@ -181,13 +181,13 @@ fn adjoint_gradients_of_freeform_parameters_match_central_differences() {
 /// value and gradient at a bulged design against central differences.
 #[test]
 fn freeform_problem_starts_and_envelope_constraint() {
-    use twistopt::optimise::{build_problem, problem_starting_points, ENVELOPE_POINTS};
+    use twistopt::optimise::{build_problem, problem_starting_points, ENVELOPE_POINTS, SHAPE_CONSTRAINTS};
     use twistopt::problem::Problem;
     let problem = Problem::load(std::path::Path::new("problems/freeform-energy-density.toml"), &["design.l_mm=17".into()]).unwrap();
     let v = problem.validate().unwrap();
     let (op, sec) = build_problem(&problem, &v).unwrap();
     assert_eq!(op.n(), 22);
-    assert_eq!(op.n_constraints(), 2 + 1 + ENVELOPE_POINTS);
+    assert_eq!(op.n_constraints(), 2 + 1 + SHAPE_CONSTRAINTS * ENVELOPE_POINTS);
     let starts = problem_starting_points(&op, sec.starts, sec.start_from_design, sec.start_spread, sec.start_p_kpa);
     assert_eq!(starts.len(), sec.starts);
     let design = op.unscale(&starts[0]);
@@ -204,18 +204,27 @@ fn freeform_problem_starts_and_envelope_constraint() {
     let mut x = starts[0].clone();
     let scaled = |v: &twistopt::optimise::Variable, val: f64| (val - v.lower) / (v.upper - v.lower);
     x[i1] = scaled(&op.variables[i1], 3.5);
+    // r off its lower bound (the start's 5√3), so that central differences see both sides
+    let ir = op.variables.iter().position(|x| x.name == "r_mm").unwrap();
+    x[ir] = 0.3;
     let g = op.envelope_constraints(&x).expect("buildable");
     let mid = ENVELOPE_POINTS / 2; // z = L/2
     assert!((g.0[mid] * 2.0 - 0.5).abs() < 1e-9, "ρ(L/2) − R = {}", g.0[mid] * 2.0);
-    for k in [i1, il] {
+    // the waist and fold constraints are satisfied there
+    assert!(g.0[ENVELOPE_POINTS..].iter().all(|v| *v < 0.0), "{:?}", &g.0[ENVELOPE_POINTS..]);
+    // every shape constraint's gradient (envelope, waist, fold) against central differences, in
+    // the bulge, l, r and a twist-law mode (the fold constraint's curvature depends on all)
+    let it = op.variables.iter().position(|x| x.name == "twist_2_deg").unwrap();
+    let i3 = op.variables.iter().position(|x| x.name == "profile_3_mm").unwrap();
+    for k in [i1, il, ir, it, i3] {
         let h = 1e-6;
         let (mut xp, mut xm) = (x.clone(), x.clone());
         xp[k] += h;
         xm[k] -= h;
         let (gp, gm) = (op.envelope_constraints(&xp).unwrap().0, op.envelope_constraints(&xm).unwrap().0);
-        for j in 0..ENVELOPE_POINTS {
+        for j in 0..SHAPE_CONSTRAINTS * ENVELOPE_POINTS {
             let fd = (gp[j] - gm[j]) / (2.0 * h);
-            assert!((fd - g.1[j][k]).abs() <= 1e-6 * fd.abs().max(1.0), "envelope {j} / variable {k}: {} vs FD {fd}", g.1[j][k]);
+            assert!((fd - g.1[j][k]).abs() <= 1e-5 * fd.abs().max(1.0), "shape constraint {j} / variable {k}: {} vs FD {fd}", g.1[j][k]);
         }
     }
 }

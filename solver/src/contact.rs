@@ -579,6 +579,74 @@ fn blend_terms(p: [f64; 3], t: [[f64; 3]; 3], eps: f64, dhat: f64) -> (f64, f64)
     blend_terms_generic(p, t, eps, dhat)
 }
 
+/// The self-contact of a surface (e.g. a cavity wall): every node of `faces` is a slave
+/// against the surface's triangles ([`face_triangles`]) and their copies rotated about z by each
+/// of `copies` (a cyclic sector's neighbours; 0 = the modelled part itself). A slave's candidate
+/// triangles are those within `reach` of it in the reference configuration, without a vertex
+/// within `exclude` of it (its own neighbourhood on the surface, which it cannot touch). A uniform
+/// grid finds them. The blend width is [`Contact::default_blend`].
+pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, reach: f64, barrier: Barrier) -> Contact {
+    let base: Vec<Triangle> = faces.iter().flat_map(|&f| face_triangles(mesh, f)).collect();
+    let mut triangles = Vec::with_capacity(base.len() * copies.len());
+    for &ang in copies {
+        for t in &base {
+            triangles.push(t.map(|v| match v {
+                Vertex::Node(n) if ang != 0.0 => Vertex::Rotated { node: n, angle: ang },
+                other => other,
+            }));
+        }
+    }
+    let x0 = &mesh.nodes;
+    let pos = |v: &Vertex| match *v {
+        Vertex::Node(n) => x0[n],
+        Vertex::Fixed(p) => p,
+        Vertex::Rotated { node, angle } => apply(&rot_z(angle), x0[node]),
+    };
+    let tri_x: Vec<[[f64; 3]; 3]> = triangles.iter().map(|t| [pos(&t[0]), pos(&t[1]), pos(&t[2])]).collect();
+    // grid of cell size `reach` over the triangles' vertices
+    let cell = reach.max(1e-12);
+    let key = |p: [f64; 3]| [(p[0] / cell).floor() as i64, (p[1] / cell).floor() as i64, (p[2] / cell).floor() as i64];
+    let mut grid: std::collections::HashMap<[i64; 3], Vec<usize>> = Default::default();
+    for (t, tx) in tri_x.iter().enumerate() {
+        let mut keys: Vec<[i64; 3]> = tx.iter().map(|p| key(*p)).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        for k in keys {
+            grid.entry(k).or_default().push(t);
+        }
+    }
+    let dist = |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let weights = nodal_areas(mesh, faces);
+    let slaves = weights
+        .into_iter()
+        .map(|(node, weight)| {
+            let p = x0[node];
+            let k = key(p);
+            let mut cand: Vec<usize> = Vec::new();
+            // a triangle within `reach` has a vertex within reach + its size: search 2 cells out
+            for dx in -2..=2 {
+                for dy in -2..=2 {
+                    for dz in -2..=2 {
+                        if let Some(v) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
+                            cand.extend_from_slice(v);
+                        }
+                    }
+                }
+            }
+            cand.sort_unstable();
+            cand.dedup();
+            cand.retain(|&t| {
+                let tx = &tri_x[t];
+                tx.iter().all(|v| dist(*v, p) > exclude) && point_triangle(p, *tx).0 <= reach
+            });
+            Slave { node, weight, targets: cand }
+        })
+        .filter(|s| !s.targets.is_empty())
+        .collect();
+    let blend = Contact::default_blend(&triangles, x0);
+    Contact { barrier, blend, triangles, slaves }
+}
+
 /// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
 pub fn nodal_areas(mesh: &Mesh, faces: &[Face]) -> Vec<(usize, f64)> {
     let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();

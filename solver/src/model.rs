@@ -437,6 +437,8 @@ impl Model {
             let mut rws: Vec<Vec<(u32, f64)>> = Vec::new();
             for t in &terms {
                 energy += t.energy;
+                // (the contact forces are terms of the residual like the element forces)
+                f_int_sq += t.force.iter().map(|v| v * v).sum::<f64>();
                 for (a, &n) in t.nodes.iter().enumerate() {
                     for c in 0..3 {
                         r_full[3 * n + c] += t.force[3 * a + c];

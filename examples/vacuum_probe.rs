@@ -15,6 +15,8 @@ use twistopt_solver::model::SolveError;
 
 /// A path model whose control functional is the amplitude φ·q along a direction (the path then
 /// runs with the amplitude prescribed and the pressure free).
+const AMP_OFFSET: f64 = 10.0;
+
 struct Amplitude<'a, M: PathModel> {
     inner: &'a M,
     phi: Vec<f64>,
@@ -28,7 +30,8 @@ impl<'a, M: PathModel> PathModel for Amplitude<'a, M> {
     }
     fn eval(&self, q: &[f64], lam: f64, tangent: bool, lin: Option<&[f64]>) -> Result<Eval<M::Matrix>, EvalFailure> {
         let mut e = self.inner.eval(q, lam, tangent, lin)?;
-        e.control = Some((q.iter().zip(&self.phi).map(|(a, b)| a * b).sum(), self.phi.clone()));
+        // (offset so that the follower's step bounds, relative to the control's size, are not tiny)
+        e.control = Some((AMP_OFFSET + q.iter().zip(&self.phi).map(|(a, b)| a * b).sum::<f64>(), self.phi.clone()));
         Ok(e)
     }
     fn factor(&self, k: &M::Matrix, definite: bool) -> Result<M::Factor, SolveError> {

@@ -594,6 +594,10 @@ fn cause_of(f: NewtonFailure) -> FailureCause {
     }
 }
 
+/// Failed attempts in a row after which a path ends (its step control had shrunk the step to
+/// the minimum long before: each failure divides it by 4).
+const MAX_FAILURES_IN_ROW: usize = 60;
+
 /// `TWISTOPT_TRACE=1` prints every step and Newton iteration to stderr.
 pub fn trace_enabled() -> bool {
     static TRACE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -763,6 +767,8 @@ impl<'a, M: PathModel> Follower<'a, M> {
             };
         }
         let mut pending_its = 0usize;
+        // failed attempts since the last converged step (a bound: failures do not count as steps)
+        let mut failures_in_row = 0usize;
         loop {
             if self.stats.steps >= o.max_steps {
                 return (PathEnd::Failed(FailureCause::StepLimit), Some(cur), ctl);
@@ -869,11 +875,15 @@ impl<'a, M: PathModel> Follower<'a, M> {
                     if self.trace {
                         eprintln!("[path] step to {target:.7} failed ({fail:?}, {its} its)");
                     }
-                    if hs <= hmin * (1.0 + 1e-9) {
+                    failures_in_row += 1;
+                    // at the minimum step (to round-off: under functional control hmin is 1e-9 of
+                    // |c|, and c + h − c loses ≈ 1e-7 of h), or after many failures in a row
+                    if hs <= hmin * (1.0 + 1e-6) || failures_in_row > MAX_FAILURES_IN_ROW {
                         // under load control next to a fold: pass it under functional control
                         if ctl == Control::Load && cur.dc.is_some() && o.switch_stiffness.is_some() {
                             ctl = Control::Functional;
                             h = hs * cur.dc.map(|d| d.abs()).unwrap_or(1.0);
+                            failures_in_row = 0;
                             continue;
                         }
                         return (PathEnd::Failed(cause_of(fail)), Some(cur), ctl);
@@ -884,6 +894,7 @@ impl<'a, M: PathModel> Follower<'a, M> {
                 Ok(n) => n,
             };
             self.stats.steps += 1;
+            failures_in_row = 0;
             let its_point = its + std::mem::take(&mut pending_its);
             // the prediction error relative to the step
             let e = norm(&new.q.iter().zip(&q_start).map(|(a, b)| a - b).collect::<Vec<f64>>()) / dqn;
@@ -1452,4 +1463,54 @@ pub fn ramp(model: &Model, q0: &[f64], from: &Loads, to: &Loads, opts: &Continua
     let loads = lp.loads(lam);
     let assembled = model.assemble(&q, &loads, false).ok();
     Ramp { end: res.end, q, lam, loads, assembled, points: res.points, stats: res.stats }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// r(q, λ) = q − λ with the control c = 10⁴ + q, not evaluable beyond q = 0.5 (an inadmissible
+    /// state): a path under functional control must end there as a failure. At c ≈ 10⁴ the
+    /// minimum step (10⁻⁹|c|) loses ≈ 10⁻⁷ of itself in c + h − c, which once made the follower
+    /// retry the same minimum step for ever.
+    struct Wall(f64);
+
+    impl PathModel for Wall {
+        type Matrix = f64;
+        type Factor = f64;
+        fn dim(&self) -> usize {
+            1
+        }
+        fn eval(&self, q: &[f64], lam: f64, tangent: bool, _lin: Option<&[f64]>) -> Result<Eval<f64>, EvalFailure> {
+            if q[0] > 0.5 {
+                return Err(EvalFailure::Inversion);
+            }
+            Ok(Eval { r: vec![q[0] - lam], scale: 1.0, control: Some((self.0 + q[0], vec![1.0])), min_det: 1.0, k: tangent.then_some(1.0) })
+        }
+        fn factor(&self, k: &f64, _definite: bool) -> Result<f64, SolveError> {
+            Ok(*k)
+        }
+        fn solve(&self, f: &f64, b: &[f64]) -> Result<Vec<f64>, SolveError> {
+            Ok(vec![b[0] / f])
+        }
+        fn load_rate(&self, _q: &[f64], _lam: f64, _ev: &Eval<f64>) -> Result<Vec<f64>, EvalFailure> {
+            Ok(vec![-1.0])
+        }
+        fn outputs(&self, _q: &[f64], _lam: f64, _ev: &Eval<f64>) -> Vec<f64> {
+            Vec::new()
+        }
+    }
+
+    #[test]
+    fn a_path_against_an_inadmissible_region_ends_under_functional_control() {
+        let o = ContinuationOptions { start_control: Control::Functional, ..ContinuationOptions::default() };
+        // (the round-off of c + h − c depends on c: several offsets)
+        for offset in [1e4, 1293.2163703536721, 3333.3, 7777.7, 12345.678, 999.9] {
+            let res = follow(&Wall(offset), &[0.0], 0.0, 1.0, &[], &[], &o);
+            assert!(matches!(res.end, PathEnd::Failed(_)), "{:?}", res.end);
+            let last = res.points.last().unwrap();
+            assert!(last.q[0] <= 0.5 && last.q[0] > 0.49, "ended at q = {}", last.q[0]);
+            assert!(res.stats.failed_attempts <= MAX_FAILURES_IN_ROW + 40, "{:?}", res.stats);
+        }
+    }
 }

@@ -655,7 +655,8 @@ impl<'a> Session<'a> {
             }
         }
         if let Some(r) = self.replay.pop_front() {
-            if same_point(&r.x, x) && r.df.len() == x.len() {
+            // (a history from a version with other constraints is not replayed: its rows do not fit)
+            if same_point(&r.x, x) && r.df.len() == x.len() && r.g.len() == self.n_constraints && r.dg.len() == self.n_constraints {
                 self.replayed += 1;
                 if let Some(f) = &self.on_replay {
                     f(&r);

@@ -282,25 +282,7 @@ fn block_on_deformable_block_balances_and_has_a_consistent_tangent() {
 }
 
 fn tangent_matches_differences(model: &Model, q: &[f64], loads: &Loads) {
-    let k = model.dense(model.assemble(q, loads, true).unwrap().k.as_ref().unwrap());
-    let n = model.n_reduced();
-    let kmax = (0..n).map(|i| k[(i, i)].abs()).fold(0.0, f64::max);
-    let h = 1e-8;
-    let mut worst = (0.0f64, 0, 0);
-    for col in 0..n {
-        let mut qp = q.to_vec();
-        let mut qm = q.to_vec();
-        qp[col] += h;
-        qm[col] -= h;
-        let rp = model.assemble(&qp, loads, false).unwrap().r;
-        let rm = model.assemble(&qm, loads, false).unwrap().r;
-        for row in 0..n {
-            let e = ((rp[row] - rm[row]) / (2.0 * h) - k[(row, col)]).abs() / kmax;
-            if e > worst.0 {
-                worst = (e, row, col);
-            }
-        }
-    }
+    let worst = common::tangent_fd_error(model, q, loads, 1e-8);
     assert!(worst.0 < 1e-6, "tangent vs FD: worst relative error {:e} at ({}, {})", worst.0, worst.1, worst.2);
 }
 

@@ -1,5 +1,6 @@
 //! The assembled reduced tangent equals central finite differences of the reduced residual, with
 //! each constraint and load kind separately and all together.
+mod common;
 use twistopt_solver::dofmap::{Constraints, Cyclic, DofSpec, RigidBody};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::NeoHookean;
@@ -8,25 +9,7 @@ use twistopt_solver::meshgen;
 use twistopt_solver::model::{Loads, Model};
 
 pub fn check(model: &Model, q: &[f64], loads: &Loads, tol: f64) {
-    let a = model.assemble(q, loads, true).unwrap();
-    let k = model.dense(a.k.as_ref().unwrap());
-    let n = model.n_reduced();
-    let kmax = (0..n).map(|i| k[(i, i)].abs()).fold(0.0, f64::max);
-    let h = 1e-6;
-    let mut worst: f64 = 0.0;
-    for col in 0..n {
-        let mut qp = q.to_vec();
-        let mut qm = q.to_vec();
-        qp[col] += h;
-        qm[col] -= h;
-        let rp = model.assemble(&qp, loads, false).unwrap().r;
-        let rm = model.assemble(&qm, loads, false).unwrap().r;
-        for row in 0..n {
-            let fd = (rp[row] - rm[row]) / (2.0 * h);
-            let an = k[(row, col)];
-            worst = worst.max((fd - an).abs() / kmax);
-        }
-    }
+    let (worst, _, _) = common::tangent_fd_error(model, q, loads, 1e-6);
     assert!(worst < tol, "tangent vs FD: worst relative error {worst:e}");
 }
 

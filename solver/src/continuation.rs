@@ -50,6 +50,9 @@ pub struct Eval<K> {
     pub min_det: f64,
     /// The tangent ∂r/∂q, when requested.
     pub k: Option<K>,
+    /// The potential Π(q, λ) whose gradient is r, when the model has one and knows it (else
+    /// [`relax`] estimates its changes from the slope along a step).
+    pub potential: Option<f64>,
 }
 
 /// Why a model could not be evaluated at a state.
@@ -75,6 +78,19 @@ pub trait PathModel {
     /// factorisation of a symmetric indefinite matrix.
     fn factor(&self, k: &Self::Matrix, definite: bool) -> Result<Self::Factor, SolveError>;
     fn solve(&self, f: &Self::Factor, b: &[f64]) -> Result<Vec<f64>, SolveError>;
+    /// The largest fraction of the step q → q + dq at λ that the model admits before evaluating
+    /// it (contact: no node may pass through a surface on the way; 1 by default).
+    fn step_limit(&self, _q: &[f64], _lam: f64, _dq: &[f64]) -> f64 {
+        1.0
+    }
+    /// The diagonal of a tangent (None: the model cannot; [`relax`] then refuses).
+    fn diagonal(&self, _k: &Self::Matrix) -> Option<Vec<f64>> {
+        None
+    }
+    /// The tangent with `d` added to its diagonal (the shifted matrix of [`relax`]).
+    fn shifted(&self, _k: &Self::Matrix, _d: &[f64]) -> Option<Self::Matrix> {
+        None
+    }
     /// ∂r/∂λ at fixed q (`ev` is the evaluation at (q, λ)).
     fn load_rate(&self, q: &[f64], lam: f64, ev: &Eval<Self::Matrix>) -> Result<Vec<f64>, EvalFailure>;
     /// The outputs recorded at a converged point.
@@ -218,6 +234,9 @@ pub enum PointKind {
     Station(usize),
     /// Where the path ended (fold, instability, threshold, end).
     End,
+    /// The stable state a snap landed on ([`follow_snapping`]): the path jumps to it from the
+    /// point before.
+    Snapped,
 }
 
 /// A converged point of the path.
@@ -491,7 +510,8 @@ pub fn correct<M: PathModel>(m: &M, q0: &[f64], lam0: f64, c_target: Option<f64>
         }
         // line search: residual-only trials on the energy slope g(s) = Δq·r(q + sΔq) under load
         // control; step cutting on inversion only under functional control
-        let mut s = 1.0;
+        // (from the longest step the model admits: no passage through a contact surface)
+        let mut s = m.step_limit(&q, lam, &dq).clamp(1e-6, 1.0);
         let mut accepted: Option<(Vec<f64>, f64, Eval<M::Matrix>)> = None;
         for _ls in 0..8 {
             let qt: Vec<f64> = q.iter().zip(&dq).map(|(x, d)| x + s * d).collect();
@@ -654,6 +674,22 @@ impl<'a, M: PathModel> Follower<'a, M> {
             &tight
         } else {
             &self.o.newton
+        };
+        // a prediction from the converged state `lin` that passes a node through a contact
+        // surface (the extrapolation is blind to it) is pulled back to before the crossing
+        let pulled;
+        let q0 = match lin {
+            Some(base) => {
+                let dq: Vec<f64> = q0.iter().zip(base).map(|(a, b)| a - b).collect();
+                let tau = self.m.step_limit(base, lam, &dq);
+                if tau < 1.0 {
+                    pulled = base.iter().zip(&dq).map(|(b, d)| b + tau * d).collect::<Vec<f64>>();
+                    &pulled[..]
+                } else {
+                    q0
+                }
+            }
+            None => q0,
         };
         let res = correct(self.m, q0, lam, c_target, nopts, self.o.mixed_tangent, lin, !locate);
         match res {
@@ -1222,7 +1258,239 @@ fn extrapolate<M: PathModel>(m: &M, cur: &Node<M>, prev: Option<&Node<M>>, ctl: 
 }
 
 // ------------------------------------------------------------------------------------------
+// Snap-through under load control
+
+/// Options of [`relax`] and [`follow_snapping`].
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SnapOptions {
+    /// Most snaps along one path.
+    pub max_snaps: usize,
+    /// The load past a lost stability at which the state is relaxed, as a fraction of
+    /// |λ_end − λ₀| beyond the last stable point.
+    pub overshoot: f64,
+    /// The critical mode's amplitude added to the last stable state before relaxing (a fraction
+    /// of the state's largest |q|): it leaves a branch that has become a saddle.
+    pub kick: f64,
+    /// Most iterations of one relaxation.
+    pub max_iter: usize,
+    /// A relaxation has converged when ‖r‖ ≤ rtol · scale and the tangent is positive definite.
+    pub rtol: f64,
+}
+
+impl Default for SnapOptions {
+    fn default() -> Self {
+        SnapOptions { max_snaps: 20, overshoot: 1e-3, kick: 1e-3, max_iter: 1000, rtol: 1e-10 }
+    }
+}
+
+/// A stable equilibrium at fixed λ reached from q0 by descending the potential (for the
+/// conservative models of this crate, r = ∂Π/∂q): shifted Newton steps (K + σD) Δq = −r, D the
+/// absolute diagonal of the first tangent, σ grown ×10 until the shifted matrix is positive
+/// definite. Each step is cut (×¼, up to 4 times) until Π decreases enough (Armijo; where the
+/// model gives no Π, until the trapezoidal estimate from the slopes Δq·r at both ends is a
+/// decrease) and the state can be evaluated (no inversion, no penetration); if none does, σ
+/// grows ×4. A full step divides σ by 4 (to 0: Newton's method near a minimum). It converges only to states whose own tangent is
+/// positive definite, so a saddle (a branch beyond a bifurcation) is left along its unstable
+/// modes. This is how a state snaps to the remote stable branch past a fold or a lost stability
+/// under load control (a pressure supply does the same).
+pub fn relax<M: PathModel>(m: &M, q0: &[f64], lam: f64, o: &SnapOptions) -> Result<Solved<M>, (NewtonFailure, usize)> {
+    let trace = trace_enabled();
+    let mut q = q0.to_vec();
+    let mut ev = m.eval(&q, lam, true, None).map_err(|e| (eval_fail(e), 0))?;
+    let d: Vec<f64> = {
+        let dg = ev.k.as_ref().and_then(|k| m.diagonal(k)).ok_or((NewtonFailure::Divergence, 0))?;
+        let mx = dg.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        if !(mx > 0.0 && mx.is_finite()) {
+            return Err((NewtonFailure::Divergence, 0));
+        }
+        dg.iter().map(|v| v.abs().max(1e-8 * mx)).collect()
+    };
+    let mut sigma = 0.0f64;
+    let mut its = 0usize;
+    let mut last_rn = f64::INFINITY;
+    while its < o.max_iter {
+        let rn = norm(&ev.r);
+        if !rn.is_finite() {
+            return Err((NewtonFailure::Divergence, its));
+        }
+        let k = ev.k.take().expect("the tangent was requested");
+        // converged: a small residual (or one at its round-off floor) with a definite tangent
+        let floor = 1e-3 * o.rtol.sqrt() * ev.scale;
+        if rn <= o.rtol * ev.scale || (rn <= floor && rn > 0.5 * last_rn) {
+            if let Ok(f) = m.factor(&k, true) {
+                ev.k = Some(k);
+                return Ok(Solved { q, lam, ev, factor: f, stable: true, iterations: its, residual_norms: Vec::new(), lagged: false });
+            }
+        }
+        last_rn = rn;
+        its += 1;
+        // the shifted matrix: the smallest shift tried that is positive definite
+        let factor = loop {
+            let ks;
+            let km = if sigma > 0.0 {
+                let sd: Vec<f64> = d.iter().map(|v| sigma * v).collect();
+                ks = m.shifted(&k, &sd).ok_or((NewtonFailure::Divergence, its))?;
+                &ks
+            } else {
+                &k
+            };
+            match m.factor(km, true) {
+                Ok(f) => break f,
+                Err(SolveError::NotPositiveDefinite) if sigma < 1e8 => sigma = if sigma == 0.0 { 1e-6 } else { sigma * 10.0 },
+                Err(_) => return Err((NewtonFailure::Divergence, its)),
+            }
+        };
+        let dq: Vec<f64> = m.solve(&factor, &ev.r).map_err(|_| (NewtonFailure::Divergence, its))?.into_iter().map(|v| -v).collect();
+        let g0 = dot(&dq, &ev.r);
+        // backtracking on the potential (Armijo), or on its trapezoidal estimate from the slopes,
+        // from the longest step the model admits (no passage through a contact surface)
+        let mut step = m.step_limit(&q, lam, &dq).clamp(1e-9, 1.0);
+        let mut accepted = None;
+        for _ in 0..5 {
+            let qt: Vec<f64> = q.iter().zip(&dq).map(|(a, b)| a + step * b).collect();
+            if let Ok(et) = m.eval(&qt, lam, false, None) {
+                let g1 = dot(&dq, &et.r);
+                let decrease = match (ev.potential, et.potential) {
+                    (Some(p0), Some(p1)) => p1 - p0 <= 1e-4 * step * g0 + 1e-14 * p0.abs(),
+                    _ => 0.5 * step * (g0 + g1) < 0.0,
+                };
+                if g1.is_finite() && decrease {
+                    accepted = Some(qt);
+                    break;
+                }
+            }
+            step *= 0.25;
+        }
+        if trace {
+            eprintln!("[relax] it {its} |r| {rn:.3e} scale {:.3e} σ {sigma:.1e} g0 {g0:.3e} |Δq|∞ {:.3e} step {}", ev.scale, dq.iter().fold(0.0f64, |a, v| a.max(v.abs())), if accepted.is_some() { step } else { 0.0 });
+        }
+        if let Some(qt) = accepted {
+            q = qt;
+            ev = m.eval(&q, lam, true, None).map_err(|e| (eval_fail(e), its))?;
+            // (a full step: towards Newton's method; a cut one: keep the shift)
+            if step >= 1.0 {
+                sigma = if sigma < 1e-6 { 0.0 } else { sigma / 4.0 };
+            }
+        } else {
+            ev.k = Some(k);
+            sigma = (sigma * 4.0).max(1e-6);
+            if sigma > 1e8 {
+                return Err((NewtonFailure::Divergence, its));
+            }
+        }
+    }
+    Err((NewtonFailure::IterationLimit, its))
+}
+
+/// The tangent's eigenvector of smallest eigenvalue magnitude at (q, λ) (inverse iteration, 12
+/// solves), normalised to a largest entry of 1.
+pub fn critical_mode<M: PathModel>(m: &M, q: &[f64], lam: f64) -> Option<Vec<f64>> {
+    let ev = m.eval(q, lam, true, None).ok()?;
+    let k = ev.k.as_ref()?;
+    let f = match m.factor(k, true) {
+        Ok(f) => f,
+        Err(_) => m.factor(k, false).ok()?,
+    };
+    // (a deterministic start with every component present)
+    let mut x: Vec<f64> = (0..q.len()).map(|i| ((i * 7919 % 101) as f64 / 101.0) - 0.5).collect();
+    for _ in 0..12 {
+        x = m.solve(&f, &x).ok()?;
+        let n = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        if !(n > 0.0 && n.is_finite()) {
+            return None;
+        }
+        x.iter_mut().for_each(|v| *v /= n);
+    }
+    Some(x)
+}
+
+/// A jump of a path followed by [`follow_snapping`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Snap {
+    /// the load of the jump
+    pub lam: f64,
+    /// index (in the path's points) of the state it landed on; the point before is the last
+    /// stable state it left
+    pub point: usize,
+    /// relaxation iterations (each a tangent factorisation)
+    pub iterations: usize,
+    /// the largest |Δq| of the jump
+    pub jump: f64,
+}
+
+/// [`follow`] under load control that snaps through where the path would end at a fold of λ
+/// or a lost stability (or fails with indefinite tangents): from the last stable point, kicked
+/// along its critical mode, the state is relaxed ([`relax`]) at a load `overshoot` beyond it
+/// and the path goes on from there; at most `max_snaps` times. The states of a snap's path are
+/// stable equilibria; the jump itself is not a quasi-static path (a pressure-controlled structure
+/// jumps dynamically). Stations crossed during a jump are not produced.
+pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions, s: &SnapOptions) -> (PathResult<M>, Vec<Snap>) {
+    let seg = ContinuationOptions { stop_at_fold: true, stop_at_instability: true, start_control: Control::Load, ..o.clone() };
+    let mut points: Vec<PathPoint> = Vec::new();
+    let mut stats = PathStats::default();
+    let mut snaps: Vec<Snap> = Vec::new();
+    let (mut q, mut lam) = (q0.to_vec(), lam0);
+    let span = (lam_end - lam0).abs();
+    let dir = if lam_end >= lam0 { 1.0 } else { -1.0 };
+    loop {
+        let res = follow(m, &q, lam, lam_end, stations, stops, &seg);
+        stats.add(&res.stats);
+        // (a later segment's start is the snap's point, already recorded)
+        let skip = usize::from(!points.is_empty());
+        points.extend(res.points.into_iter().skip(skip));
+        let snappable = matches!(res.end, PathEnd::Instability | PathEnd::Fold | PathEnd::Failed(_));
+        if snappable {
+            // (states past the last stable one lie on the branch being left)
+            while points.len() > 1 && points.last().is_some_and(|p| !p.stable) {
+                points.pop();
+            }
+        }
+        let Some(last) = points.last().cloned().filter(|_| snappable && snaps.len() < s.max_snaps) else {
+            return (PathResult { points, end: res.end, stats, last: res.last, control: res.control }, snaps);
+        };
+        let lam_t = if dir * (lam_end - last.lam) <= s.overshoot * span { lam_end } else { last.lam + dir * s.overshoot * span };
+        let mut qk = last.q.clone();
+        if let Some(phi) = critical_mode(m, &last.q, last.lam) {
+            stats.factorizations += 1;
+            let scale = last.q.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-12);
+            // the sign that lowers the potential at the new load
+            let g = m.eval(&last.q, lam_t, false, None).map(|e| dot(&phi, &e.r)).unwrap_or(0.0);
+            let a = if g > 0.0 { -s.kick * scale } else { s.kick * scale };
+            qk.iter_mut().zip(&phi).for_each(|(x, p)| *x += a * p);
+        }
+        match relax(m, &qk, lam_t, s) {
+            Ok(sol) => {
+                stats.newton_iterations += sol.iterations;
+                stats.factorizations += sol.iterations + 1;
+                let jump = sol.q.iter().zip(&last.q).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
+                let out = m.outputs(&sol.q, sol.lam, &sol.ev);
+                points.push(PathPoint { lam: sol.lam, q: sol.q.clone(), control: sol.ev.control.as_ref().map(|c| c.0), outputs: out, min_det: sol.ev.min_det, stable: true, kind: PointKind::Snapped, newton_iterations: sol.iterations });
+                snaps.push(Snap { lam: sol.lam, point: points.len() - 1, iterations: sol.iterations, jump });
+                if trace_enabled() {
+                    eprintln!("[snap] at λ {:.7}: {} iterations, jump {jump:.3e}", sol.lam, sol.iterations);
+                }
+                q = sol.q;
+                lam = sol.lam;
+                if dir * (lam_end - lam) <= 0.0 {
+                    return (PathResult { points, end: PathEnd::Completed, stats, last: Some((sol.ev.k.expect("tangent"), sol.factor)), control: Control::Load }, snaps);
+                }
+            }
+            Err((f, its)) => {
+                stats.newton_iterations += its;
+                stats.failed_iterations += its;
+                stats.failed_attempts += 1;
+                return (PathResult { points, end: PathEnd::Failed(cause_of(f)), stats, last: None, control: Control::Load }, snaps);
+            }
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------
 // The full-order model as a path model
+
+/// A step that would pass a contact slave through a target surface is cut to this fraction of
+/// the way to the crossing ([`PathModel::step_limit`]).
+const CCD_KEEP: f64 = 0.8;
 
 /// A [`Model`] under loads interpolated linearly between `from` (λ = 0) and `to` (λ = 1), with
 /// the cavity volume as control functional and outputs read through adjoint functionals.
@@ -1361,7 +1629,10 @@ impl<'a> PathModel for LoadPath<'a> {
             a.f_scale.max(fb).max(norm(&loads.nodal_forces))
         };
         let control = (self.volume_control && self.model.cavity.is_some()).then(|| (a.volume, a.dvol.clone()));
-        Ok(Eval { r: a.r, scale, control, min_det: a.min_det_f, k: a.k })
+        // Π = W (+ contact) − p V, where no dead loads act
+        let dead = loads.body_forces.iter().any(|f| f.iter().any(|v| *v != 0.0)) || loads.nodal_forces.iter().any(|v| *v != 0.0);
+        let potential = (!dead).then(|| a.energy - loads.pressure * a.volume);
+        Ok(Eval { r: a.r, scale, control, min_det: a.min_det_f, k: a.k, potential })
     }
     fn factor(&self, k: &Vec<f64>, definite: bool) -> Result<Factor, SolveError> {
         if definite {
@@ -1372,6 +1643,18 @@ impl<'a> PathModel for LoadPath<'a> {
     }
     fn solve(&self, f: &Factor, b: &[f64]) -> Result<Vec<f64>, SolveError> {
         f.solve(b)
+    }
+    fn step_limit(&self, q: &[f64], lam: f64, dq: &[f64]) -> f64 {
+        if self.model.contact().is_none() {
+            return 1.0;
+        }
+        self.model.contact_step_limit(q, dq, &self.loads(lam), CCD_KEEP)
+    }
+    fn diagonal(&self, k: &Vec<f64>) -> Option<Vec<f64>> {
+        self.model.tangent_diagonal(k).ok()
+    }
+    fn shifted(&self, k: &Vec<f64>, d: &[f64]) -> Option<Vec<f64>> {
+        self.model.tangent_shifted(k, d).ok()
     }
     fn load_rate(&self, q: &[f64], lam: f64, ev: &Eval<Vec<f64>>) -> Result<Vec<f64>, EvalFailure> {
         if !self.presc_moves() {
@@ -1485,7 +1768,7 @@ mod tests {
             if q[0] > 0.5 {
                 return Err(EvalFailure::Inversion);
             }
-            Ok(Eval { r: vec![q[0] - lam], scale: 1.0, control: Some((self.0 + q[0], vec![1.0])), min_det: 1.0, k: tangent.then_some(1.0) })
+            Ok(Eval { r: vec![q[0] - lam], scale: 1.0, control: Some((self.0 + q[0], vec![1.0])), min_det: 1.0, k: tangent.then_some(1.0), potential: None })
         }
         fn factor(&self, k: &f64, _definite: bool) -> Result<f64, SolveError> {
             Ok(*k)
@@ -1513,4 +1796,110 @@ mod tests {
             assert!(res.stats.failed_attempts <= MAX_FAILURES_IN_ROW + 40, "{:?}", res.stats);
         }
     }
+
+    /// Two conservative toy models (r = ∂Π/∂q) of the instabilities a pressure ramp meets:
+    /// `Fold`: r = (f(u) − λ, v), f(u) = u³ − 3u² + 2.5u, a maximum of λ at u = 1 − √(1/6) past
+    /// which the state snaps to the stiff branch u > 1 + √(1/6); `Pitchfork`: r = (u − λ,
+    /// (λc − λ)v + v³), a symmetric branch v = 0 that loses stability at λ = λc to v = ±√(λ − λc).
+    #[derive(Clone, Copy)]
+    enum Toy {
+        Fold,
+        Pitchfork,
+    }
+
+    /// the pitchfork's critical load
+    const LC: f64 = 0.9137;
+
+    fn f_fold(u: f64) -> f64 {
+        u * u * u - 3.0 * u * u + 2.5 * u
+    }
+
+    impl PathModel for Toy {
+        type Matrix = nalgebra::Matrix2<f64>;
+        type Factor = nalgebra::Matrix2<f64>;
+        fn dim(&self) -> usize {
+            2
+        }
+        fn eval(&self, q: &[f64], lam: f64, tangent: bool, _lin: Option<&[f64]>) -> Result<Eval<Self::Matrix>, EvalFailure> {
+            let (u, v) = (q[0], q[1]);
+            let (r, k, control) = match self {
+                Toy::Fold => (vec![f_fold(u) - lam, v], nalgebra::Matrix2::new(3.0 * u * u - 6.0 * u + 2.5, 0.0, 0.0, 1.0), Some((u, vec![1.0, 0.0]))),
+                Toy::Pitchfork => (vec![u - lam, (LC - lam) * v + v * v * v], nalgebra::Matrix2::new(1.0, 0.0, 0.0, LC - lam + 3.0 * v * v), None),
+            };
+            Ok(Eval { r, scale: 1.0, control, min_det: 1.0, k: tangent.then_some(k), potential: None })
+        }
+        fn factor(&self, k: &Self::Matrix, definite: bool) -> Result<Self::Matrix, SolveError> {
+            if definite && k.cholesky().is_none() {
+                return Err(SolveError::NotPositiveDefinite);
+            }
+            k.try_inverse().ok_or(SolveError::Singular)
+        }
+        fn solve(&self, f: &Self::Matrix, b: &[f64]) -> Result<Vec<f64>, SolveError> {
+            let x = f * nalgebra::Vector2::new(b[0], b[1]);
+            Ok(vec![x[0], x[1]])
+        }
+        fn diagonal(&self, k: &Self::Matrix) -> Option<Vec<f64>> {
+            Some(vec![k[(0, 0)], k[(1, 1)]])
+        }
+        fn shifted(&self, k: &Self::Matrix, d: &[f64]) -> Option<Self::Matrix> {
+            Some(k + nalgebra::Matrix2::new(d[0], 0.0, 0.0, d[1]))
+        }
+        fn load_rate(&self, q: &[f64], _lam: f64, _ev: &Eval<Self::Matrix>) -> Result<Vec<f64>, EvalFailure> {
+            Ok(match self {
+                Toy::Fold => vec![-1.0, 0.0],
+                Toy::Pitchfork => vec![-1.0, -q[1]],
+            })
+        }
+        fn outputs(&self, q: &[f64], _lam: f64, _ev: &Eval<Self::Matrix>) -> Vec<f64> {
+            q.to_vec()
+        }
+    }
+
+    /// Every point of a snapping path is a stable equilibrium of its load.
+    fn assert_stable_equilibria(m: &Toy, pts: &[PathPoint]) {
+        for p in pts {
+            let e = m.eval(&p.q, p.lam, true, None).unwrap();
+            assert!(norm(&e.r) < 1e-7, "residual {} at λ {}", norm(&e.r), p.lam);
+            assert!(e.k.unwrap().cholesky().is_some(), "unstable point at λ {}: {:?}", p.lam, p.q);
+        }
+    }
+
+    #[test]
+    fn a_load_controlled_path_snaps_past_a_fold_to_the_remote_stable_branch() {
+        let m = Toy::Fold;
+        let o = ContinuationOptions::default();
+        let (res, snaps) = follow_snapping(&m, &[0.0, 0.0], 0.0, 1.5, &[], &[], &o, &SnapOptions::default());
+        assert_eq!(res.end, PathEnd::Completed);
+        assert_eq!(snaps.len(), 1, "{snaps:?}");
+        // the fold: λ_max = f(1 − √(1/6)); the jump lands on the far root of f(u) = λ
+        let uf = 1.0 - (1.0f64 / 6.0).sqrt();
+        let sn = &snaps[0];
+        assert!((sn.lam - f_fold(uf)).abs() < 2e-3, "snap at λ {} (fold {})", sn.lam, f_fold(uf));
+        let landed = &res.points[sn.point];
+        assert_eq!(landed.kind, PointKind::Snapped);
+        assert!(landed.q[0] > 1.0 + (1.0f64 / 6.0).sqrt(), "landed at u = {}", landed.q[0]);
+        assert!((res.points[sn.point - 1].q[0] - uf).abs() < 1e-2, "left from u = {}", res.points[sn.point - 1].q[0]);
+        let end = res.points.last().unwrap();
+        assert!((end.lam - 1.5).abs() < 1e-12 && (f_fold(end.q[0]) - 1.5).abs() < 1e-8 && end.q[0] > 2.0);
+        assert_stable_equilibria(&m, &res.points);
+    }
+
+    #[test]
+    fn a_load_controlled_path_leaves_a_branch_that_lost_stability_along_its_critical_mode() {
+        let m = Toy::Pitchfork;
+        let o = ContinuationOptions::default();
+        let (res, snaps) = follow_snapping(&m, &[0.0, 0.0], 0.0, 2.0, &[0.5], &[], &o, &SnapOptions::default());
+        assert_eq!(res.end, PathEnd::Completed);
+        assert_eq!(snaps.len(), 1, "{snaps:?}");
+        assert!((snaps[0].lam - LC).abs() < 3e-3, "snap at λ {}", snaps[0].lam);
+        assert!(res.points.iter().any(|p| p.kind == PointKind::Station(0) && (p.lam - 0.5).abs() < 1e-12));
+        let end = res.points.last().unwrap();
+        assert!((end.q[0] - 2.0).abs() < 1e-8 && (end.q[1].abs() - (2.0 - LC).sqrt()).abs() < 1e-8, "{:?}", end.q);
+        assert_stable_equilibria(&m, &res.points);
+        // from the saddle itself (v = 0 at λ = 2, r = 0) relaxation needs a seed along the mode;
+        // from a tiny one it reaches the buckled state
+        let sol = relax(&m, &[2.0, 1e-9], 2.0, &SnapOptions::default()).unwrap();
+        assert!(sol.stable && (sol.q[1] - (2.0 - LC).sqrt()).abs() < 1e-8, "{:?}", sol.q);
+    }
+
 }

@@ -275,6 +275,39 @@ impl Model {
             .map_err(|e| ModelError::Symbolic(e.clone()))
     }
 
+    /// With contact: the largest fraction of the step q → q + dq (nodes moving on straight lines
+    /// between the two states) that keeps every slave farther from its targets than `keep` times
+    /// its distance at q ([`crate::contact::Contact::max_step`]); 1 without contact.
+    pub fn contact_step_limit(&self, q: &[f64], dq: &[f64], loads: &Loads, keep: f64) -> f64 {
+        let Some(con) = &self.contact else {
+            return 1.0;
+        };
+        let x0 = &self.mesh.nodes;
+        let u0 = self.dofs.expand(x0, q, &loads.presc, &self.dofs.body_kinematics(q, &loads.presc));
+        let q1: Vec<f64> = q.iter().zip(dq).map(|(a, b)| a + b).collect();
+        let u1 = self.dofs.expand(x0, &q1, &loads.presc, &self.dofs.body_kinematics(&q1, &loads.presc));
+        let x = |n: usize| [x0[n][0] + u0[n][0], x0[n][1] + u0[n][1], x0[n][2] + u0[n][2]];
+        let dx = |n: usize| [u1[n][0] - u0[n][0], u1[n][1] - u0[n][1], u1[n][2] - u0[n][2]];
+        con.max_step(&x, &dx, keep)
+    }
+
+    /// The diagonal of a tangent (values in this model's sparse pattern), in the model's order of
+    /// the unknowns.
+    pub fn tangent_diagonal(&self, values: &[f64]) -> Result<Vec<f64>, SolveError> {
+        let sp = self.sparse_setup().map_err(|_| SolveError::Setup)?;
+        Ok((0..self.n_reduced() as u32).map(|i| values[sp.pattern.slot(i, i)]).collect())
+    }
+
+    /// The tangent with `d` added to its diagonal (a shifted, regularised Newton matrix).
+    pub fn tangent_shifted(&self, values: &[f64], d: &[f64]) -> Result<Vec<f64>, SolveError> {
+        let sp = self.sparse_setup().map_err(|_| SolveError::Setup)?;
+        let mut v = values.to_vec();
+        for (i, di) in d.iter().enumerate() {
+            v[sp.pattern.slot(i as u32, i as u32)] += di;
+        }
+        Ok(v)
+    }
+
     /// Entries of the Cholesky factor L (the fill of the ordering; 0 if the setup failed).
     pub fn factor_nnz(&self) -> usize {
         self.sparse_setup().map_or(0, |sp| sp.symbolic.len_val())

@@ -2537,7 +2537,17 @@ impl<'a> PathModel for RomPath<'a> {
                 *last = Some((z.to_vec(), lam, st));
             }
         }
-        Ok(Eval { r, scale, control, min_det, k })
+        Ok(Eval { r, scale, control, min_det, k, potential: None })
+    }
+    fn diagonal(&self, k: &Mat<f64>) -> Option<Vec<f64>> {
+        Some((0..k.nrows()).map(|i| k[(i, i)]).collect())
+    }
+    fn shifted(&self, k: &Mat<f64>, d: &[f64]) -> Option<Mat<f64>> {
+        let mut m = k.clone();
+        for (i, di) in d.iter().enumerate() {
+            m[(i, i)] += di;
+        }
+        Some(m)
     }
     fn factor(&self, k: &Mat<f64>, definite: bool) -> Result<DenseFactor, SolveError> {
         if definite {

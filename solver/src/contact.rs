@@ -7,7 +7,9 @@
 //!   fixed obstacle), **blended** over the triangles near the node: dᵢ = Σ w_t d_t / Σ w_t with
 //!   d_t the signed distance to triangle t's plane and w_t = Π_edges S(e/ε + ½)·C(d_t), e the
 //!   in-plane distance of the node's projection from the edge (positive inside), S the C² smooth
-//!   step and ε the blend width ([`Contact::blend`]); C drops triangles farther than 2–3 d̂.
+//!   step and ε the blend width ([`Contact::blend`]); C drops triangles farther than 2–3 d̂ in
+//!   front of the node or ¼–½ d̂ behind it (a node farther behind came round the triangle's edge,
+//!   not through it: the steps' collision check excludes that);
 //!   Inside a triangle, away from its edges, dᵢ is that triangle's plane distance; across an
 //!   edge shared by two coplanar triangles the weights sum to 1, so on a flat surface dᵢ is
 //!   exactly the distance; across a crease it blends the two planes' distances smoothly. (The
@@ -15,8 +17,11 @@
 //!   on which Newton stalls: measured in tests/contact_block.rs.);
 //! * b(d) = −(d − d̂)² ln(d/d̂) for d < d̂ and 0 beyond (`ipc-toolkit` src/ipc/barrier/barrier.cpp),
 //!   C² at d̂ and unbounded as d → 0;
-//! * g(B) = 1 for Bᵢ = Σ w_t ≥ 1 (inside a surface) and 3B² − 2B³ below, which fades the contact
-//!   out beyond a surface's free edge;
+//! * g(B) = 1 for Bᵢ = Σ w_t ≥ 1 (inside a surface), 0 for Bᵢ ≤ ½ and 3x² − 2x³ between
+//!   (x = 2Bᵢ − 1), which fades the contact out beyond a surface's free edge. A node with
+//!   Bᵢ ≤ ½ is not over the surface and has no term: beside a triangle's edge it may lie behind
+//!   the triangle's plane without having passed through the triangle (measured on the collapsing
+//!   actuator cavity, where such nodes were refused as penetrations and stalled the path);
 //! * wᵢ the node's consistent reference area ∫ Nᵢ dA over the slave faces ([`nodal_areas`]), so
 //!   that equal gaps carry the consistent nodal loads of a uniform contact pressure κ·|b'(d)| and
 //!   the contact pressure does not depend on the mesh.
@@ -26,11 +31,13 @@
 //! each triangle's (d_t, w_t) in the node and the triangle's vertices, combined by the quotient
 //! rule.
 //!
-//! A state where a node has reached or crossed its target surface (dᵢ ≤ 0) is not admissible:
+//! A state where a node over its target surface (Bᵢ > ½) has reached or crossed it (dᵢ ≤ 0) is
+//! not admissible:
 //! the assembly reports [`crate::element::ElementError::Penetration`], which the Newton line
-//! search treats like an inverted element (the step is cut). A node that tunnels through a target
-//! surface by more than 2–3 d̂ in one step is not detected (no continuous collision detection
-//! yet).
+//! search treats like an inverted element (the step is cut). No step passes a node through a
+//! surface: the path follower's and the relaxation's line searches start from the step fraction
+//! that [`Contact::max_step`] admits (continuous collision detection by conservative
+//! advancement), whatever the distance.
 //!
 //! Hex27 (and Hex8) faces enter as triangles on their node grid ([`face_triangles`]), oriented
 //! with the face's outward normal; a cyclic sector's neighbours as rotated copies
@@ -335,13 +342,99 @@ impl Contact {
             sa += w * d;
             sb += w;
         }
-        (sb > 0.0).then(|| sa / sb)
+        (sb > FADE_START).then(|| sa / sb)
     }
 
     /// The smallest blended distance of any slave node to its target surface (∞ without slaves
     /// within a triangle's reach).
     pub fn min_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
         self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(f64::INFINITY, f64::min)
+    }
+
+    /// The smallest distance of any slave node to its target surface (∞ without candidates):
+    /// the signed blended distance where the node is within a triangle's blend band (negative:
+    /// the node has passed through the surface), else the unsigned distance to the closest
+    /// triangle (far from contact the sign of one triangle's plane is not the side of the surface:
+    /// on a concave wall the node lies behind the planes of its own wall's other triangles).
+    pub fn min_distance(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
+        self.slaves.iter().filter_map(|s| self.blended_gap(s, x).or_else(|| self.closest(s, x).map(|c| c.0))).fold(f64::INFINITY, f64::min)
+    }
+
+    /// The largest fraction τ ∈ (0, 1] of the straight motion x → x + dx of every node that
+    /// passes no slave through the face of one of its target triangles: continuous collision
+    /// detection of each point–triangle pair (the point crosses the moving triangle's plane where
+    /// det[b − a, c − a, p − a](τ), a cubic, changes sign, at a point inside the triangle), the
+    /// step cut to `keep` of the first crossing. Pairs that cannot meet within the step (distance
+    /// above the largest relative motion) are skipped; a node behind a triangle's plane at the
+    /// start came round its edge and is not checked. So no step tunnels through a surface,
+    /// however far beyond the barrier's reach it lands.
+    pub fn max_step(&self, x: &impl Fn(usize) -> [f64; 3], dx: &impl Fn(usize) -> [f64; 3], keep: f64) -> f64 {
+        let motion = |t: usize| {
+            self.triangles[t].map(|v| match v {
+                Vertex::Node(n) => dx(n),
+                Vertex::Fixed(_) => [0.0; 3],
+                Vertex::Rotated { node, angle } => apply(&rot_z(angle), dx(node)),
+            })
+        };
+        let norm = |a: [f64; 3]| (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        let at = |a: [f64; 3], d: [f64; 3], t: f64| [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]];
+        let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let mut tmax = 1.0f64;
+        for s in &self.slaves {
+            let (p0, dp) = (x(s.node), dx(s.node));
+            let lp = norm(dp);
+            for &t in &s.targets {
+                let (c0, dc) = (self.coords(t, x), motion(t));
+                let l = lp + dc.iter().map(|v| norm(*v)).fold(0.0, f64::max);
+                if !(l > 0.0) {
+                    continue;
+                }
+                let (d0, sd0, _) = point_triangle(p0, c0);
+                if sd0 <= 0.0 || l * tmax < d0 {
+                    continue;
+                }
+                let state = |tau: f64| {
+                    let c = [at(c0[0], dc[0], tau), at(c0[1], dc[1], tau), at(c0[2], dc[2], tau)];
+                    (at(p0, dp, tau), c)
+                };
+                let f = |tau: f64| {
+                    let (p, c) = state(tau);
+                    let n = crate::scalar::cross(sub(c[1], c[0]), sub(c[2], c[0]));
+                    crate::scalar::dot(n, sub(p, c[0]))
+                };
+                // the first sign change of the cubic on [0, tmax] (8 intervals), by bisection
+                let f0 = f(0.0);
+                let mut lo = 0.0;
+                let mut hit = None;
+                for k in 1..=8 {
+                    let hi = tmax * k as f64 / 8.0;
+                    if f(hi) * f0 <= 0.0 {
+                        let (mut a, mut b) = (lo, hi);
+                        for _ in 0..40 {
+                            let m = 0.5 * (a + b);
+                            if f(m) * f0 > 0.0 {
+                                a = m;
+                            } else {
+                                b = m;
+                            }
+                        }
+                        hit = Some(b);
+                        break;
+                    }
+                    lo = hi;
+                }
+                let Some(tc) = hit else { continue };
+                // through the triangle's face at the crossing (not its boundary: a node on a free
+                // edge is at most half over the surface and has no barrier to stop it)
+                let (p, c) = state(tc);
+                let (dist, _, kind) = point_triangle(p, c);
+                let size = norm(sub(c[1], c[0])).max(norm(sub(c[2], c[0])));
+                if kind == Closest::Face && dist <= 1e-6 * size.max(1e-12) + 1e-9 {
+                    tmax = tmax.min(keep * tc);
+                }
+            }
+        }
+        tmax
     }
 
     /// A blend width for a target mesh: a tenth of its shortest triangle edge (reference
@@ -384,6 +477,13 @@ impl Contact {
                 }
             }
             if act.is_empty() {
+                continue;
+            }
+            // beyond a surface's free edge (or beside a crease whose other side is not a
+            // candidate) the weights sum to less than 1 and the contact fades out; at half or
+            // less the node is not over the surface and has no term (a node beside a triangle's
+            // edge may lie behind its plane without having passed through it)
+            if sb <= FADE_START {
                 continue;
             }
             let gap = sa / sb;
@@ -535,13 +635,21 @@ fn smoothstep<D: Scalar>(x: D) -> D {
     }
 }
 
+/// The blend weights' sum below which a slave is not over its target surface (no contact term).
+const FADE_START: f64 = 0.5;
+
 /// The contact fade g(B) of the blend weights' sum: 1 for B ≥ 1 (inside a surface, where the
-/// weights sum to at least 1), 3B² − 2B³ below (beyond a surface's free edge); (g, g', g'').
+/// weights sum to at least 1), 0 for B ≤ ½, 3x² − 2x³ between (x = (B − ½)/½: beyond a surface's
+/// free edge); (g, g', g'').
 fn fade(b: f64) -> (f64, f64, f64) {
     if b >= 1.0 {
         (1.0, 0.0, 0.0)
+    } else if b <= FADE_START {
+        (0.0, 0.0, 0.0)
     } else {
-        (3.0 * b * b - 2.0 * b * b * b, 6.0 * b - 6.0 * b * b, 6.0 - 12.0 * b)
+        let k = 1.0 / (1.0 - FADE_START);
+        let x = (b - FADE_START) * k;
+        (3.0 * x * x - 2.0 * x * x * x, (6.0 * x - 6.0 * x * x) * k, (6.0 - 12.0 * x) * k * k)
     }
 }
 
@@ -549,7 +657,7 @@ fn fade(b: f64) -> (f64, f64, f64) {
 /// signed distance to the triangle's plane and w = Π S(eᵢ/ε + ½) · C(d) its weight, eᵢ the
 /// in-plane distance of the projected point from edge i (positive inside), S the smooth step
 /// (so that across an edge shared by two coplanar triangles the weights sum to 1), and C a cutoff
-/// that drops triangles farther than 2–3 d̂ from the point (either side).
+/// that drops triangles farther than 2–3 d̂ in front of the point or d̂/4–d̂/2 behind it.
 pub fn blend_terms_generic<D: Scalar>(p: [D; 3], t: [[D; 3]; 3], eps: f64, dhat: f64) -> (D, D) {
     let sub = |u: [D; 3], v: [D; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
     let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
@@ -569,9 +677,10 @@ pub fn blend_terms_generic<D: Scalar>(p: [D; 3], t: [[D; 3]; 3], eps: f64, dhat:
             return (d, D::zero());
         }
     }
-    // cutoff in |d| over [2 d̂, 3 d̂]
-    let ad = if d.re() < 0.0 { -d } else { d };
-    let c = D::one() - smoothstep(ad / dhat - D::from(2.0));
+    // cutoff in front over d ∈ [2 d̂, 3 d̂]; behind over d ∈ [−d̂/2, −d̂/4] (a node farther
+    // behind a triangle's plane has not come through it, which the continuous collision check
+    // of the steps excludes, but round its edge)
+    let c = if d.re() >= 0.0 { D::one() - smoothstep(d / dhat - D::from(2.0)) } else { smoothstep(d / dhat * D::from(4.0) + D::from(2.0)) };
     (d, w * c)
 }
 
@@ -757,9 +866,13 @@ mod tests {
             slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
         };
         c.validate(5).unwrap();
-        for (p, kind) in [([0.3, 0.25, 0.0135], Closest::Face), ([0.5, 0.045, 0.027], Closest::Edge(0)), ([-0.004, -0.003, 0.002], Closest::Vertex(0))] {
+        // inside a triangle; over the crease between the two (both weights); inside, within the
+        // blend band of a free edge (the weights sum to between ½ and 1: the fade)
+        for (p, kind) in [([0.3, 0.25, 0.0135], Some(Closest::Face)), ([0.56, 0.56, 0.02], None), ([0.058, 0.5, -0.004], Some(Closest::Face))] {
             x[3] = p;
-            assert_eq!(c.closest(&c.slaves[0], &|n| x[n]).map(|b| (b.2, b.3)), Some((kind, 0)), "{p:?}");
+            if let Some(kind) = kind {
+                assert_eq!(c.closest(&c.slaves[0], &|n| x[n]).map(|b| (b.2, b.3)), Some((kind, 0)), "{p:?}");
+            }
             let energy = |x: &Vec<[f64; 3]>| c.terms(&|n| x[n], false).unwrap().0.iter().map(|t| t.energy).sum::<f64>();
             let (terms, _) = c.terms(&|n| x[n], true).unwrap();
             assert_eq!(terms.len(), 1);
@@ -789,4 +902,31 @@ mod tests {
         x[3] = [0.3, 0.25, 0.008];
         assert_eq!(c.terms(&|n| x[n], false).unwrap_err(), Penetration { node: 3 });
     }
+
+    #[test]
+    fn steps_through_a_surface_are_cut_before_the_crossing_however_far() {
+        // a slave 0.5 above a fixed unit triangle (z = 0, normal +z), far beyond the barrier's reach
+        let c = Contact {
+            barrier: Barrier { dhat: 0.01, kappa: 1.0 },
+            blend: 0.05,
+            triangles: vec![[Vertex::Fixed([0.0, 0.0, 0.0]), Vertex::Fixed([1.0, 0.0, 0.0]), Vertex::Fixed([0.0, 1.0, 0.0])]],
+            slaves: vec![Slave { node: 0, weight: 1.0, targets: vec![0] }],
+        };
+        let x = |_: usize| [0.2, 0.2, 0.5];
+        // 10 units down: crosses the face at τ = 0.05, cut to keep × 0.05
+        let tau = c.max_step(&x, &|_| [0.0, 0.0, -10.0], 0.8);
+        assert!((tau - 0.8 * 0.05).abs() < 1e-9, "{tau}");
+        // down and sideways, crossing the plane outside the triangle: not cut
+        assert_eq!(c.max_step(&x, &|_| [3.0, 0.0, -1.0], 0.8), 1.0);
+        // along the surface, or away from it: not cut
+        assert_eq!(c.max_step(&x, &|_| [0.3, 0.3, 0.0], 0.8), 1.0);
+        assert_eq!(c.max_step(&x, &|_| [0.0, 0.0, 5.0], 0.8), 1.0);
+        // a node behind the plane (come round an edge) moving up through it is not cut
+        assert_eq!(c.max_step(&|_| [0.2, 0.2, -0.5], &|_| [0.0, 0.0, 10.0], 0.8), 1.0);
+        // the state itself: far behind the plane the triangle does not count (no refusal), just
+        // behind it it is a penetration
+        assert!(c.terms(&|_| [0.2, 0.2, -0.5], false).is_ok());
+        assert!(c.terms(&|_| [0.2, 0.2, -0.001], false).is_err());
+    }
+
 }

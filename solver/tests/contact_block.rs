@@ -8,7 +8,7 @@
 mod common;
 use std::collections::BTreeMap;
 use twistopt_solver::contact::{self, Barrier, Contact, Slave};
-use twistopt_solver::continuation::{correct, ramp, ContinuationOptions, LoadPath, PathEnd};
+use twistopt_solver::continuation::{correct, ramp, ContinuationOptions, LoadPath, PathEnd, PathModel};
 use twistopt_solver::dofmap::Constraints;
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::NeoHookean;
@@ -133,11 +133,14 @@ fn block_on_rigid_plane_is_b1_compression() {
 
 #[test]
 fn block_cannot_be_pushed_through_the_plane() {
-    // a state with the bottom behind the plane is refused (the Newton line search cuts the step)
+    // a state with the bottom just behind the plane is refused (the Newton line search cuts the
+    // step); a step that would carry it farther through is cut before the plane (collision check)
     let blk = block(1000.0, Barrier { dhat: 1e-3, kappa: 20.0 }, 1.5e-3);
     let m = &blk.model;
-    // the whole block translated 3 mm down (no element distorts): its bottom is behind the plane
-    let loads = loads_with(m, &blk.top, 2, -3e-3);
+    // the whole block translated 1.6 mm down (no element distorts): its bottom is 0.1 d̂ behind
+    // the plane
+    let through = 1.6e-3;
+    let loads = loads_with(m, &blk.top, 2, -through);
     let mut q = vec![0.0; m.n_reduced()];
     let mut idx = Vec::new();
     for n in 0..m.mesh.n_nodes() {
@@ -145,13 +148,18 @@ fn block_cannot_be_pushed_through_the_plane() {
             idx.clear();
             m.dofs.row_pattern(n, 2, &mut idx);
             assert_eq!(idx.len(), 1);
-            q[idx[0] as usize] = -3e-3;
+            q[idx[0] as usize] = -through;
         }
     }
     match m.assemble(&q, &loads, false) {
         Err(twistopt_solver::element::ElementError::Penetration(n)) => assert!(blk.bottom.contains(&n)),
         other => panic!("expected a penetration error, got {:?}", other.map(|a| a.contact_gap)),
     }
+    // the step from rest to 1 m through the plane is cut at 0.8 of the way to the plane
+    let lp = LoadPath::new(m, loads.clone(), loads.clone(), Vec::new());
+    let far: Vec<f64> = q.iter().map(|v| v / through * 1e3).collect();
+    let tau = lp.step_limit(&vec![0.0; m.n_reduced()], 0.0, &far);
+    assert!((tau - 0.8 * 1.5e-3 / 1e3).abs() < 1e-6 * tau, "{tau}");
 }
 
 /// Two meshes in one (node and element ids of `b` offset; sets prefixed "a_" and "b_").
@@ -183,8 +191,9 @@ fn merge(a: Mesh, b: Mesh) -> Mesh {
 
 #[test]
 fn block_on_deformable_block_balances_and_has_a_consistent_tangent() {
-    // lower block [0,2.2]²×[−1,0] (bottom fixed in z), upper block [0,1]²×[g0, 1+g0] above it,
-    // both on the rollers x = 0, y = 0; node-to-surface contact of the upper block's bottom nodes
+    // lower block [−0.6,2.2]²×[−1,0] (bottom fixed in z), upper block [0,1]²×[g0, 1+g0] above it
+    // (each on rollers at its own x_min, y_min faces, so that every slave is over the target's
+    // interior, not on its free edge); node-to-surface contact of the upper block's bottom nodes
     // with the lower block's triangulated top face (moving triangles, which the upper block dents).
     // Checked at a synthetic contact state (the upper block moved into the barrier's reach, every
     // node perturbed): the contact forces on the slaves and on the target nodes balance in force
@@ -194,7 +203,7 @@ fn block_on_deformable_block_balances_and_has_a_consistent_tangent() {
     // one, Newton stalled on this ramp at a relative residual of 1e-6 to 1e-4: the distance's
     // gradient jumps over every concave crease of the dented surface.)
     let g0 = 1.5e-3;
-    let lower = meshgen::structured(KIND, 3, 3, 1, |p| [2.2 * p[0], 2.2 * p[1], p[2] - 1.0]);
+    let lower = meshgen::structured(KIND, 3, 3, 1, |p| [2.8 * p[0] - 0.6, 2.8 * p[1] - 0.6, p[2] - 1.0]);
     let upper = meshgen::structured(KIND, 1, 1, 1, |p| [p[0], p[1], p[2] + g0]);
     let mesh = merge(lower, upper);
     let mut cons = Constraints::default();

@@ -29,7 +29,7 @@ use crate::geometry::{ActuatorGeometry, L_TUBE, R0_ENVELOPE, T_WALL};
 use crate::meshing::{build_mesh, ActuatorMesh, MeshError, MeshSpec};
 use std::time::Instant;
 use twistopt_solver::adjoint::Functional;
-use twistopt_solver::continuation::{correct, follow, ContinuationOptions, Control, LoadPath, PathEnd, PathStats, PointKind, Stop};
+use twistopt_solver::continuation::{correct, follow, follow_snapping, ContinuationOptions, Control, LoadPath, PathEnd, PathStats, PointKind, SnapOptions, Stop};
 use twistopt_solver::dofmap::{BodyDof, Constraints, Cyclic, DofSpec, RigidBody};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::Material;
@@ -138,7 +138,10 @@ pub struct ContactOptions {
 
 impl Default for ContactOptions {
     fn default() -> Self {
-        ContactOptions { dhat_mm: 0.1, pressure_mpa: 0.1, reach_mm: 8.0 }
+        // (reach: the walls that meet in the collapse are up to a cavity's width apart; with 8 mm
+        // the example design's walls passed through each other past −47 kPa (coarse mesh: the
+        // cavity volume went negative), with 20 mm they did not)
+        ContactOptions { dhat_mm: 0.1, pressure_mpa: 0.1, reach_mm: 20.0 }
     }
 }
 
@@ -211,6 +214,14 @@ pub struct StepRecord {
     #[serde(rename = "min_detF")]
     pub min_det_f: f64,
     pub newton_iterations: usize,
+    /// With self-contact modelled: the smallest signed distance of a cavity node to the cavity
+    /// wall it may touch (mm; ≥ 0: no interpenetration).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_distance_mm: Option<f64>,
+    /// The state was reached by a snap (a jump past a lost stability under the pressure supply),
+    /// not along a continuous path from the one before.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub snapped: bool,
 }
 
 /// How a scene's load path ended (serialised as the kebab-case names).
@@ -509,7 +520,11 @@ impl SceneModel {
     /// with `contact_gap`, the self-contact margin in slot `OUT_CONTACT`).
     pub fn path(&self, from: Loads, to: Loads, contact_gap: Option<f64>) -> LoadPath<'_> {
         let mut lp = LoadPath::new(&self.model, from, to, self.functionals());
-        if let Some(gap) = contact_gap {
+        if let Some(con) = self.model.contact() {
+            // the smallest distance of a cavity node to the wall it may touch
+            let x0 = &self.model.mesh.nodes;
+            lp.extra.push(Box::new(move |a: &Assembled| con.min_distance(&|n: usize| [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]])));
+        } else if let Some(gap) = contact_gap {
             lp.extra.push(Box::new(move |a: &Assembled| self.contact_margin(a, gap)));
         }
         lp
@@ -526,13 +541,19 @@ impl SceneModel {
             cavity_volume_mm3: out[OUT_VOLUME] * self.multiplicity,
             min_det_f,
             newton_iterations,
+            contact_distance_mm: self.model.contact().map(|_| out.get(OUT_CONTACT).copied().unwrap_or(f64::NAN)).filter(|v| v.is_finite()),
+            snapped: false,
         }
     }
 
     /// Scene outputs of an assembled state, through the same functionals as a path.
     pub fn record(&self, a: &Assembled, loads: &Loads, newton_iterations: usize) -> StepRecord {
         let st = twistopt_solver::adjoint::State::from_assembly(&self.model, a);
-        let out: Vec<f64> = self.functionals().iter().map(|f| f.eval(&self.model, &st).unwrap_or(f64::NAN)).collect();
+        let mut out: Vec<f64> = self.functionals().iter().map(|f| f.eval(&self.model, &st).unwrap_or(f64::NAN)).collect();
+        if let Some(con) = self.model.contact() {
+            let x0 = &self.model.mesh.nodes;
+            out.push(con.min_distance(&|n: usize| [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]]));
+        }
         self.step_record(&out, loads.pressure * 1e3, a.min_det_f, newton_iterations)
     }
 
@@ -628,6 +649,10 @@ fn pressure_path_with(
         if vacuum && opts.contact.is_none() {
             stops.push(Stop { name: "self-contact".into(), output: OUT_CONTACT, threshold: 0.0, rising: false });
         }
+        if vacuum && opts.contact.is_some() {
+            // a vanishing cavity means walls passed each other outside the contact candidates
+            stops.push(Stop { name: "cavity-closed".into(), output: OUT_VOLUME, threshold: 0.0, rising: false });
+        }
     }
     let stations: Vec<f64> = stations_kpa.iter().map(|p| p / p_end_kpa).collect();
     let lam0 = if p_end_kpa != 0.0 { p0_kpa / p_end_kpa } else { 0.0 };
@@ -661,7 +686,13 @@ fn pressure_path_with(
         Ok(v) => v,
         Err(its) => return ScenePath::guess_failed(its),
     };
-    let mut res = follow(&lp, &q0, lam0, 1.0, &stations, &stops, path_opts);
+    let mut res = if vacuum && sm.model.contact().is_some() {
+        // under vacuum the wall buckles before it touches: the pressure supply makes it snap to
+        // the collapsed, contacting state (see `follow_snapping`)
+        follow_snapping(&lp, &q0, lam0, 1.0, &stations, &stops, path_opts, &SnapOptions::default()).0
+    } else {
+        follow(&lp, &q0, lam0, 1.0, &stations, &stops, path_opts)
+    };
     res.stats.newton_iterations += spent;
     scene_path(sm, opts, &res.points, res.end, res.stats, |lam| lp.loads(lam), &stops, p0_kpa, gap, res.last)
 }
@@ -712,12 +743,18 @@ fn scene_path(
     gap: f64,
     last: Option<(Vec<f64>, Factor)>,
 ) -> ScenePath {
-    let points: Vec<ScenePoint> = pts.iter().map(|pt| ScenePoint { record: sm.step_record(&pt.outputs, loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations), q: pt.q.clone() }).collect();
+    let points: Vec<ScenePoint> = pts
+        .iter()
+        .map(|pt| ScenePoint { record: StepRecord { snapped: pt.kind == PointKind::Snapped, ..sm.step_record(&pt.outputs, loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations) }, q: pt.q.clone() })
+        .collect();
     let p_last = points.last().map(|p| p.record.p_kpa).unwrap_or(p0_kpa);
     let limit = opts.ballooning_limit_mm;
     let end = match end {
         PathEnd::Completed => None,
         PathEnd::Stopped(i) if stops[i].name == "ballooning" => Some((SceneStatus::Ballooning, format!("max deformed radius reached the ballooning limit {limit:.2} mm at p = {p_last:.4} kPa"))),
+        PathEnd::Stopped(i) if stops[i].name == "cavity-closed" => {
+            Some((SceneStatus::SelfContact, format!("the cavity volume vanished at p = {p_last:.4} kPa: walls passed each other beyond the contact candidates (raise the contact reach_mm)")))
+        }
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
         PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),
         PathEnd::Instability => {
@@ -780,6 +817,8 @@ impl Equilibrium {
                     cavity_volume_mm3: 0.0,
                     min_det_f: 1.0,
                     newton_iterations: 0,
+                    contact_distance_mm: None,
+                    snapped: false,
                 });
                 (q, record)
             }

@@ -61,12 +61,16 @@ fn self_contact_set_spans_the_neighbouring_sectors() {
     let centre: Vec<f64> = (0..3).map(|k| (pos(&tri[0])[k] + pos(&tri[1])[k] + pos(&tri[2])[k]) / 3.0).collect();
     let p = x0[s.node];
     let mut moved = x0.clone();
-    // 0.05 mm beyond the triangle's centre (a penetration deeper than 2–3 d̂ in one step would
-    // not be seen: no continuous collision detection yet)
+    // 0.01 mm beyond the triangle's centre: refused
     let len = (0..3).map(|k| (centre[k] - p[k]).powi(2)).sum::<f64>().sqrt();
-    moved[s.node] = [0, 1, 2].map(|k| centre[k] + 0.05 * (centre[k] - p[k]) / len);
+    moved[s.node] = [0, 1, 2].map(|k| centre[k] + 0.01 * (centre[k] - p[k]) / len);
     assert!(d > 0.0);
     assert!(c.terms(&|n| moved[n], false).is_err(), "a node driven through the facing wall is not refused");
+    // a step carrying it 5 mm beyond (far behind the barrier's reach) is cut before the wall
+    let far = [0, 1, 2].map(|k| centre[k] + 5.0 * (centre[k] - p[k]) / len - p[k]);
+    let node = s.node;
+    let tau = c.max_step(&|n| x0[n], &|n| if n == node { far } else { [0.0; 3] }, 0.8);
+    assert!(tau < 1.0 && tau * (len + 5.0) < 0.8 * len + 1e-9, "step fraction {tau} (the wall at {len} mm of {} mm)", len + 5.0);
 }
 
 #[test]

@@ -34,7 +34,7 @@ use rayon::prelude::*;
 pub enum AdjointError {
     #[error("sensitivities with periodic (helical) constraints are not implemented")]
     Periodic,
-    #[error("sensitivities through contact states are not implemented yet")]
+    #[error("limit-point sensitivities through contact states are not implemented yet")]
     Contact,
     #[error("element evaluation failed: {0}")]
     Element(#[from] ElementError),
@@ -193,6 +193,31 @@ pub fn evaluate<D: Scalar>(model: &Model, inp: &Inputs<D>, loads: &Loads) -> Res
         volume = surface::volume_and_gradient(cav, xcur, &mut gvol_full, |_, _, _, _| {});
         for (rv, &g) in r_full.iter_mut().zip(&gvol_full) {
             *rv -= inp.pressure * g;
+        }
+    }
+    // contact: the barrier forces at the state's values, to first order in its derivative
+    // (f + H δx, H the exact Hessian in the current positions, δx = x − x̄ the dual part of the
+    // positions), the slave weights ∫N dA of the shape as the factor w(X)/w̄
+    if let Some(con) = model.contact() {
+        let xd: Vec<[D; 3]> = (0..nn_total).map(|n| [x0[n][0] + u[n][0], x0[n][1] + u[n][1], x0[n][2] + u[n][2]]).collect();
+        let xre: Vec<[f64; 3]> = xd.iter().map(|p| [p[0].re(), p[1].re(), p[2].re()]).collect();
+        let (terms, _) = con.terms(&|n| xre[n], true).map_err(|p| AdjointError::Element(ElementError::Penetration(p.node)))?;
+        let weights: std::collections::HashMap<usize, D> = crate::contact::nodal_areas_at(&model.mesh, &con.faces, x0).into_iter().collect();
+        let given: std::collections::HashMap<usize, f64> = con.slaves.iter().map(|s| (s.node, s.weight)).collect();
+        for t in &terms {
+            let ratio = match (weights.get(&t.nodes[0]), given.get(&t.nodes[0])) {
+                (Some(w), Some(&w0)) if w0 > 0.0 => *w / w0,
+                _ => D::one(),
+            };
+            let nv = 3 * t.nodes.len();
+            let dx: Vec<D> = (0..nv).map(|j| xd[t.nodes[j / 3]][j % 3] - D::from(xre[t.nodes[j / 3]][j % 3])).collect();
+            for i in 0..nv {
+                let mut v = ratio * t.force[i];
+                for (j, dxj) in dx.iter().enumerate() {
+                    v += *dxj * t.hessian[i * nv + j];
+                }
+                r_full[3 * t.nodes[i / 3] + i % 3] += v;
+            }
         }
     }
     if !loads.nodal_forces.is_empty() {
@@ -424,9 +449,6 @@ fn partial_q(model: &Model, q: &[f64], loads: &Loads, st: &State<f64>, f: &Funct
 /// q under `loads`; `factor` is the factorisation of the reduced tangent at q (e.g. from
 /// [`crate::solve::newton_factored`] or [`crate::solve::factor_converged`]).
 pub fn sensitivities(model: &Model, q: &[f64], loads: &Loads, factor: &Factor, functionals: &[Functional], directions: &[Direction]) -> Result<Sensitivities, AdjointError> {
-    if model.contact().is_some() {
-        return Err(AdjointError::Contact);
-    }
     let inp = Inputs { x0: &model.mesh.nodes, q, pressure: loads.pressure, presc: &loads.presc, params: &model.params };
     let st = evaluate(model, &inp, loads)?;
     let mut evals = 0;

@@ -141,6 +141,10 @@ pub struct Contact {
     pub blend: f64,
     pub triangles: Vec<Triangle>,
     pub slaves: Vec<Slave>,
+    /// The slave faces whose consistent nodal areas ([`nodal_areas`]) are the slaves' weights,
+    /// so that shape sensitivities differentiate the weights too (empty: weights given, not
+    /// shape-dependent).
+    pub faces: Vec<Face>,
 }
 
 /// The type of the closest point of a triangle to a point.
@@ -753,27 +757,33 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         .filter(|s| !s.targets.is_empty())
         .collect();
     let blend = Contact::default_blend(&triangles, x0);
-    Contact { barrier, blend, triangles, slaves }
+    Contact { barrier, blend, triangles, slaves, faces: faces.to_vec() }
 }
 
 /// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
 pub fn nodal_areas(mesh: &Mesh, faces: &[Face]) -> Vec<(usize, f64)> {
-    let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
+    nodal_areas_at(mesh, faces, &mesh.nodes)
+}
+
+/// [`nodal_areas`] with the nodes at `x` (generic: shape derivatives of the weights).
+pub fn nodal_areas_at<D: Scalar>(mesh: &Mesh, faces: &[Face], x: &[[D; 3]]) -> Vec<(usize, D)> {
+    let mut acc: std::collections::BTreeMap<usize, D> = Default::default();
     for f in faces {
         let nodes = mesh.face_nodes(*f);
         let rule = FaceRule::new(nodes.len(), 3);
         for (q, w) in rule.weights.iter().enumerate() {
-            let mut ts = [[0.0; 3]; 2];
+            let mut ts = [[D::zero(); 3]; 2];
             for (a, &n) in nodes.iter().enumerate() {
                 for d in 0..2 {
                     for c in 0..3 {
-                        ts[d][c] += rule.dn[q][a][d] * mesh.nodes[n][c];
+                        ts[d][c] += x[n][c] * rule.dn[q][a][d];
                     }
                 }
             }
-            let da = dot(cross(ts[0], ts[1]), cross(ts[0], ts[1])).sqrt() * w;
+            let nv = cross(ts[0], ts[1]);
+            let da = dot(nv, nv).sqrt() * *w;
             for (a, &n) in nodes.iter().enumerate() {
-                *acc.entry(n).or_insert(0.0) += rule.n[q][a] * da;
+                *acc.entry(n).or_insert(D::zero()) += da * rule.n[q][a];
             }
         }
     }
@@ -864,6 +874,7 @@ mod tests {
                 [Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Fixed([2.0, 2.0, 0.0]), Vertex::Node(2)],
             ],
             slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
+            faces: Vec::new(),
         };
         c.validate(5).unwrap();
         // inside a triangle; over the crease between the two (both weights); inside, within the
@@ -911,6 +922,7 @@ mod tests {
             blend: 0.05,
             triangles: vec![[Vertex::Fixed([0.0, 0.0, 0.0]), Vertex::Fixed([1.0, 0.0, 0.0]), Vertex::Fixed([0.0, 1.0, 0.0])]],
             slaves: vec![Slave { node: 0, weight: 1.0, targets: vec![0] }],
+            faces: Vec::new(),
         };
         let x = |_: usize| [0.2, 0.2, 0.5];
         // 10 units down: crosses the face at τ = 0.05, cut to keep × 0.05

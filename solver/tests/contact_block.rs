@@ -4,7 +4,8 @@
 //! node carries the consistent nodal load of that pressure), and the block's stretch and lateral
 //! stretch are B1's. A second test presses a block on a wider deformable block (node-to-triangle
 //! contact with moving triangles): action equals reaction, nothing penetrates, and the tangent
-//! equals central differences of the residual at the contact state.
+//! equals central differences of the residual at the contact state. A third checks adjoint
+//! sensitivities at a contact state against central differences of re-solved models.
 mod common;
 use std::collections::BTreeMap;
 use twistopt_solver::contact::{self, Barrier, Contact, Slave};
@@ -56,7 +57,7 @@ fn block(ratio: f64, barrier: Barrier, g0: f64) -> Block {
     let mat = NeoHookean::with_ratio(0.34, ratio).unwrap();
     let mut model = Model::new(mesh, Formulation::standard(KIND), mat.into(), &cons, None).unwrap();
     let blend = Contact::default_blend(&triangles, &model.mesh.nodes);
-    model.set_contact(Contact { barrier, blend, triangles, slaves }).unwrap();
+    model.set_contact(Contact { barrier, blend, triangles, slaves, faces: model.mesh.face_sets["zmin"].clone() }).unwrap();
     Block { model, top, bottom, weights }
 }
 
@@ -224,7 +225,7 @@ fn block_on_deformable_block_balances_and_has_a_consistent_tangent() {
     let mat = NeoHookean::with_ratio(0.34, 1000.0).unwrap();
     let mut model = Model::new(mesh, Formulation::standard(KIND), mat.into(), &cons, None).unwrap();
     let blend = Contact::default_blend(&triangles, &model.mesh.nodes);
-    model.set_contact(Contact { barrier, blend, triangles, slaves }).unwrap();
+    model.set_contact(Contact { barrier, blend, triangles, slaves, faces: model.mesh.face_sets["b_zmin"].clone() }).unwrap();
     // the upper block 1.2 mm down (gap ≈ 0.3 d̂), every free unknown perturbed by up to 1e-5
     let loads = loads_with(&model, &top, 2, -1.2e-3);
     let mut q = vec![0.0; model.n_reduced()];
@@ -296,14 +297,88 @@ fn tangent_matches_differences(model: &Model, q: &[f64], loads: &Loads) {
 }
 
 
+/// A block (rollers x = 0, y = 0) whose top face is a rigid cap held at z = −push, pressed on the
+/// rigid plane z = −g0, on the mesh moved by `dx0 × h`.
+fn capped_block(dx0: &dyn Fn([f64; 3]) -> [f64; 3], h: f64) -> (Model, Loads) {
+    let mut mesh = meshgen::boxed(KIND, [2, 2, 2], [1.0, 1.0, 1.0]);
+    for x in mesh.nodes.iter_mut() {
+        let d = dx0(*x);
+        for c in 0..3 {
+            x[c] += h * d[c];
+        }
+    }
+    let top = mesh.node_sets["zmax"].clone();
+    let mut cons = Constraints::default();
+    cons.prescribe_set(&mesh.node_sets["xmin"], &[0], 0.0);
+    cons.prescribe_set(&mesh.node_sets["ymin"], &[1], 0.0);
+    use twistopt_solver::dofmap::{DofSpec, RigidBody};
+    cons.bodies.push(RigidBody {
+        name: "cap".into(),
+        reference: [0.0, 0.0, 1.0],
+        nodes: top,
+        mask: [false, false, true],
+        dofs: [DofSpec::Prescribed(0.0), DofSpec::Prescribed(0.0), DofSpec::Prescribed(0.0), DofSpec::Prescribed(0.0), DofSpec::Prescribed(0.0), DofSpec::Prescribed(0.0)],
+    });
+    let faces = mesh.face_sets["zmin"].clone();
+    let weights = contact::nodal_areas(&mesh, &faces);
+    let triangles = contact::plane_obstacle([0.5, 0.5, -1.5e-3], [0.0, 0.0, 1.0], 10.0);
+    let slaves = weights.iter().map(|&(node, weight)| Slave { node, weight, targets: vec![0, 1] }).collect();
+    let mat = NeoHookean::with_ratio(0.34, 100.0).unwrap();
+    let mut model = Model::new(mesh, Formulation::standard(KIND), mat.into(), &cons, None).unwrap();
+    let blend = Contact::default_blend(&triangles, &model.mesh.nodes);
+    model.set_contact(Contact { barrier: Barrier { dhat: 1e-3, kappa: 20.0 }, blend, triangles, slaves, faces }).unwrap();
+    let mut loads = Loads::zero(&model);
+    let twistopt_solver::dofmap::BodyDof::Presc(slot) = model.dofs.body_dofs[0][2] else { panic!("cap z is prescribed") };
+    loads.presc[slot] = -0.1;
+    (model, loads)
+}
+
 #[test]
-fn sensitivities_through_contact_are_refused_not_wrong() {
-    let blk = block(1000.0, Barrier { dhat: 1e-3, kappa: 20.0 }, 1.5e-3);
-    let m = &blk.model;
-    let loads = loads_with(m, &blk.top, 2, -0.01);
-    let q = vec![0.0; m.n_reduced()];
+fn sensitivities_through_contact_match_central_differences() {
+    // the cap's reaction (the force that presses the block on the plane) at a contact state, and
+    // its derivatives in three directions: the block widened (the contact weights grow with the
+    // area), its bottom tilted (unequal gaps: non-uniform contact) and the cap pushed further
+    use twistopt_solver::adjoint::{sensitivities, Direction, Functional};
+    let width = |x: [f64; 3]| [x[0], x[1], 0.0];
+    let tilt = |x: [f64; 3]| [0.0, 0.0, 0.02 * x[0] * (1.0 - x[2])];
+    let none = |_: [f64; 3]| [0.0; 3];
+    let (m, loads) = capped_block(&none, 0.0);
+    let res = ramp(&m, &vec![0.0; m.n_reduced()], &Loads::zero(&m), &loads, &opts());
+    assert_eq!(res.end, PathEnd::Completed);
+    let q = res.q;
     let a = m.assemble(&q, &loads, true).unwrap();
-    let f = m.factor_indefinite(a.k.as_ref().unwrap()).unwrap();
-    let r = twistopt_solver::adjoint::sensitivities(m, &q, &loads, &f, &[twistopt_solver::adjoint::Functional::CavityVolume], &[]);
-    assert!(matches!(r, Err(twistopt_solver::adjoint::AdjointError::Contact)));
+    assert!(a.contact_gap < 1e-3, "in contact: gap {}", a.contact_gap);
+    let f = m.factor(a.k.as_ref().unwrap()).unwrap();
+    let twistopt_solver::dofmap::BodyDof::Presc(slot) = m.dofs.body_dofs[0][2] else { unreachable!() };
+    let mut dpresc = vec![0.0; loads.presc.len()];
+    dpresc[slot] = -1.0;
+    let dir = |name: &str, g: &dyn Fn([f64; 3]) -> [f64; 3]| Direction { name: name.into(), dx0: Some(m.mesh.nodes.iter().map(|x| g(*x)).collect()), ..Default::default() };
+    let dirs = vec![dir("width", &width), dir("tilt", &tilt), Direction { name: "push".into(), dpresc, ..Default::default() }];
+    let fun = [Functional::BodyReaction { body: 0, dof: 2 }];
+    let sens = sensitivities(&m, &q, &loads, &f, &fun, &dirs).unwrap();
+    // the reaction itself: the contact force on the plane, minus the cap's (B1-like compression)
+    let reaction = sens.values[0];
+    assert!(reaction.abs() > 0.01, "reaction {reaction}");
+    // central differences: re-solved models on the moved mesh / at the moved cap, Newton from q
+    let tight = twistopt_solver::solve::NewtonOptions { rtol: 1e-13, atol: 1e-14, ..Default::default() };
+    let solve_at = |m: &Model, l: &Loads| {
+        let mut qq = q.clone();
+        twistopt_solver::solve::newton(m, &mut qq, l, &tight).unwrap();
+        let st = twistopt_solver::adjoint::State::from_assembly(m, &m.assemble(&qq, l, false).unwrap());
+        fun[0].eval(m, &st).unwrap()
+    };
+    let h = 1e-5;
+    for (k, g) in [(0usize, &width as &dyn Fn([f64; 3]) -> [f64; 3]), (1, &tilt)] {
+        let (mp, lp) = capped_block(g, h);
+        let (mm, lm) = capped_block(g, -h);
+        let fd = (solve_at(&mp, &lp) - solve_at(&mm, &lm)) / (2.0 * h);
+        let ad = sens.gradients[0][k];
+        assert!((fd - ad).abs() <= 1e-5 * fd.abs().max(1e-3 * reaction.abs()), "{}: adjoint {ad} vs central differences {fd}", dirs[k].name);
+    }
+    let (mut lp, mut lm) = (loads.clone(), loads.clone());
+    lp.presc[slot] -= h;
+    lm.presc[slot] += h;
+    let fd = (solve_at(&m, &lp) - solve_at(&m, &lm)) / (2.0 * h);
+    let ad = sens.gradients[0][2];
+    assert!((fd - ad).abs() <= 1e-5 * fd.abs(), "push: adjoint {ad} vs central differences {fd}");
 }

@@ -1,5 +1,6 @@
-//! The cavity's self-contact in the actuator scenes (issue 19, first part): the contact set
-//! across the cyclic cut, and a vacuum path whose walls stay apart is unchanged by it.
+//! The cavity's self-contact in the actuator scenes (issue 19): the contact set across the
+//! cyclic cut, a vacuum path whose walls stay apart is unchanged by it, and adjoint gradients at a
+//! contact state (past the wall's snap) equal central differences.
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
 use twistopt::scene::*;
@@ -87,4 +88,39 @@ fn vacuum_path_with_contact_is_unchanged_while_the_walls_stay_apart() {
     }
     let pmin = b.steps.iter().map(|s| s.p_kpa).fold(f64::INFINITY, f64::min);
     assert!((pmin + 20.0).abs() < 1e-6, "reached {pmin}");
+}
+
+#[test]
+fn adjoint_at_a_contact_state_matches_central_differences() {
+    // coarse, free and blocked: past the wall's first snap (−32.9 kPa free) the cavity walls are
+    // in contact at −40 kPa; θ, τ, V and the KS radius w.r.t. r, l, α, p and μ against central
+    // differences (warm re-solves of the perturbed designs at the same state), within 1e-5
+    use twistopt::gradient::{fd_check, max_rel_error, scene_gradient, DEFAULT_KS_RHO_PER_MM};
+    let g = example();
+    let o = opts(true);
+    for kind in [SceneKind::Free, SceneKind::Blocked] {
+        let sg = scene_gradient(&g, &o, kind, -40.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
+        assert_eq!(sg.status, SceneStatus::Converged, "{kind:?}: {}", sg.cause);
+        // a contact state: some wall node within the barrier's reach of the facing wall
+        let sm = SceneModel::build(&g, &o, kind).unwrap();
+        let a = sm.model.assemble(&sg.q, &sm.loads(-40.0, 0.0), false).unwrap();
+        assert!(a.contact_gap < ContactOptions::default().dhat_mm, "{kind:?}: not in contact (gap {})", a.contact_gap);
+        let rep = fd_check(&g, &o, kind, &sg, &[1e-4, 1e-5]);
+        // (under vacuum the KS radius hardly moves: its gradients are ~1e-9 per unit, at the
+        // differences' round-off; such a component passes when adjoint and differences agree
+        // to 1e-9 of the value over the parameter's whole range)
+        let ok = |f: &str, c: &twistopt::gradient::FdComponent| {
+            let range = c.steps[0] / 1e-4;
+            let fd = c.fd_richardson.or(*c.fd.last().unwrap()).unwrap_or(f64::NAN);
+            c.rel_error <= 1e-5 || (c.adjoint - fd).abs() * range <= 1e-9 * sg.values[f].abs()
+        };
+        let detail: Vec<String> = rep.iter().flat_map(|(f, m)| m.iter().filter(|(_, c)| !ok(f, c)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error))).collect();
+        assert!(detail.is_empty(), "{kind:?}: max rel error {:e}: {detail:?}", max_rel_error(&rep));
+        // and the contact-dominated outputs themselves pass the relative test
+        for f in ["theta_deg", "tau_Nm", "cavity_volume_mm3"] {
+            for (p, c) in rep.get(f).into_iter().flatten() {
+                assert!(c.rel_error <= 1e-5, "{kind:?} {f}/{p}: adjoint {} fd {:?}", c.adjoint, c.fd);
+            }
+        }
+    }
 }

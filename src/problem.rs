@@ -39,6 +39,11 @@
 //! ballooning_limit_mm = 28.75   # stop a ramp when the max deformed radius exceeds this (1.15·R0)
 //! cap_load = true               # the pressure also pushes on the top cap (default); false = on
 //!                               # the lateral wall only
+//! # contact = { dhat_mm = 0.1, pressure_MPa = 0.1, reach_mm = 20, blend_mm = 0.02 }
+//!                               # frictionless self-contact of the cavity wall (vacuum): the
+//!                               # barrier's reach d̂, the contact pressure at d̂/10, the reference
+//!                               # distance of candidate wall pairs, the crease blend width; a
+//!                               # vacuum ramp then snaps through the wall's collapse and goes on
 //!
 //! [torque_rotation]             # optional: the letter's Fig. 4b (torque vs prescribed rotation)
 //! pressures_kPa = [30, 71]      # one line per pressure (non-zero)
@@ -280,6 +285,10 @@ pub struct ScenesSection {
     /// whether the pressure also pushes on the top cap (default true; omitted from the echo then)
     #[serde(default = "default_true", skip_serializing_if = "is_true")]
     pub cap_load: bool,
+    /// frictionless self-contact of the cavity wall under vacuum (absent: not modelled, a vacuum
+    /// ramp stops where two walls come close)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact: Option<crate::scene::ContactOptions>,
 }
 
 fn is_true(b: &bool) -> bool {
@@ -295,7 +304,7 @@ fn default_ballooning() -> f64 {
 
 impl Default for ScenesSection {
     fn default() -> Self {
-        ScenesSection { run: default_scenes(), full: false, ballooning_limit_mm: default_ballooning(), cap_load: true }
+        ScenesSection { run: default_scenes(), full: false, ballooning_limit_mm: default_ballooning(), cap_load: true, contact: None }
     }
 }
 
@@ -469,6 +478,16 @@ impl Problem {
             }
             scenes.push(k);
         }
+        if let Some(c) = &s.contact {
+            for (k, v) in [("dhat_mm", c.dhat_mm), ("pressure_MPa", c.pressure_mpa), ("reach_mm", c.reach_mm), ("blend_mm", c.blend_mm)] {
+                if !(v.is_finite() && v > 0.0) {
+                    bail!("scenes.contact.{k} = {v} must be finite and positive");
+                }
+            }
+            if c.reach_mm <= 2.0 * crate::geometry::T_WALL {
+                bail!("scenes.contact.reach_mm = {} must exceed the excluded neighbourhood 2t = {} mm", c.reach_mm, 2.0 * crate::geometry::T_WALL);
+            }
+        }
         if !(s.ballooning_limit_mm.is_finite() && s.ballooning_limit_mm > crate::geometry::R_TUBE) {
             bail!("scenes.ballooning_limit_mm = {} must be finite and larger than the undeformed radius {} mm", s.ballooning_limit_mm, crate::geometry::R_TUBE);
         }
@@ -530,6 +549,7 @@ impl Problem {
         o.ballooning_limit_mm = self.scenes.ballooning_limit_mm;
         o.keep_fields = self.output.vtu;
         o.cap_load = self.scenes.cap_load;
+        o.contact = self.scenes.contact;
         if let Some((rom, m)) = &v.rom {
             o.rom = Some(rom.clone());
             o.rom_box = m.design_box.clone();
@@ -684,6 +704,27 @@ mod tests {
             Ok(()) => panic!("expected an error for {text:?} {sets:?}"),
             Err(e) => format!("{e:#}"),
         }
+    }
+
+    #[test]
+    fn contact_key() {
+        // absent: not modelled, not echoed
+        let p = Problem::from_str_with(BASE, "t", &[]).unwrap();
+        let v = p.validate().unwrap();
+        assert!(p.scene_options(&v).contact.is_none());
+        assert!(!toml::to_string(&p).unwrap().contains("contact"));
+        // a table with some keys: the rest take their defaults
+        let p = Problem::from_str_with(BASE, "t", &["scenes.contact={reach_mm = 15.0}".into()]).unwrap();
+        let v = p.validate().unwrap();
+        let c = p.scene_options(&v).contact.unwrap();
+        assert_eq!(c, crate::scene::ContactOptions { reach_mm: 15.0, ..Default::default() });
+        assert!(toml::to_string(&p).unwrap().contains("reach_mm = 15.0"));
+        let e = err(BASE, &["scenes.contact={dhat_mm = -0.1}"]);
+        assert!(e.starts_with("scenes.contact.dhat_mm = -0.1 must be finite and positive"), "{e}");
+        let e = err(BASE, &["scenes.contact={reach_mm = 2.0}"]);
+        assert!(e.contains("must exceed the excluded neighbourhood"), "{e}");
+        let e = err(BASE, &["scenes.contact={reach = 2.0}"]);
+        assert!(e.contains("unknown field `reach`"), "{e}");
     }
 
     #[test]

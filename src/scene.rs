@@ -129,14 +129,32 @@ pub struct SceneOptions {
 /// pressure at the gap d̂/10 (which sets the barrier stiffness κ), and the reference distance
 /// within which wall triangles are candidates of a wall node (beyond its own 2t neighbourhood).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ContactOptions {
+    #[serde(default = "default_dhat_mm")]
     pub dhat_mm: f64,
-    #[serde(rename = "pressure_MPa")]
+    #[serde(rename = "pressure_MPa", default = "default_contact_pressure")]
     pub pressure_mpa: f64,
+    #[serde(default = "default_reach_mm")]
     pub reach_mm: f64,
     /// the width of the band over which neighbouring wall triangles' distances are blended
     #[serde(default = "default_blend_mm")]
     pub blend_mm: f64,
+}
+
+fn default_dhat_mm() -> f64 {
+    0.1
+}
+
+fn default_contact_pressure() -> f64 {
+    0.1
+}
+
+fn default_reach_mm() -> f64 {
+    // the walls that meet in the collapse are up to a cavity's width apart; with 8 mm the
+    // example design's walls passed through each other past −47 kPa (coarse mesh: the cavity
+    // volume went negative), with 20 mm they did not
+    20.0
 }
 
 fn default_blend_mm() -> f64 {
@@ -146,10 +164,7 @@ fn default_blend_mm() -> f64 {
 
 impl Default for ContactOptions {
     fn default() -> Self {
-        // (reach: the walls that meet in the collapse are up to a cavity's width apart; with 8 mm
-        // the example design's walls passed through each other past −47 kPa (coarse mesh: the
-        // cavity volume went negative), with 20 mm they did not)
-        ContactOptions { dhat_mm: 0.1, pressure_mpa: 0.1, reach_mm: 20.0, blend_mm: default_blend_mm() }
+        ContactOptions { dhat_mm: default_dhat_mm(), pressure_mpa: default_contact_pressure(), reach_mm: default_reach_mm(), blend_mm: default_blend_mm() }
     }
 }
 

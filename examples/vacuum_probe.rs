@@ -10,7 +10,7 @@
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
 use twistopt::scene::*;
-use twistopt_solver::continuation::{follow, Control, ContinuationOptions, Eval, EvalFailure, PathModel, PathPoint};
+use twistopt_solver::continuation::{critical_mode, follow, Control, ContinuationOptions, Eval, EvalFailure, PathModel, PathPoint};
 use twistopt_solver::model::SolveError;
 
 /// A path model whose control functional is the amplitude φ·q along a direction (the path then
@@ -48,18 +48,6 @@ impl<'a, M: PathModel> PathModel for Amplitude<'a, M> {
     }
 }
 
-/// The null vector of the tangent at (q, λ): inverse iteration with the indefinite factor.
-fn null_vector<M: PathModel>(m: &M, q: &[f64], lam: f64) -> Vec<f64> {
-    let ev = m.eval(q, lam, true, None).unwrap();
-    let f = m.factor(ev.k.as_ref().unwrap(), false).unwrap();
-    let mut x: Vec<f64> = (0..q.len()).map(|i| ((i * 7919 % 101) as f64 / 101.0) - 0.5).collect();
-    for _ in 0..8 {
-        x = m.solve(&f, &x).unwrap();
-        let n = x.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        x.iter_mut().for_each(|v| *v /= n);
-    }
-    x
-}
 use twistopt_solver::material::NeoHookean;
 
 fn main() {
@@ -85,7 +73,7 @@ fn main() {
     if res.end == twistopt_solver::continuation::PathEnd::Instability && imp != 0.0 {
         // the buckling mode at the last stable point, as a nodal field scaled to max |u| = IMP
         let b = res.points.last().unwrap().clone();
-        let phi = null_vector(&lp, &b.q, b.lam);
+        let phi = critical_mode(&lp, &b.q, b.lam).expect("critical mode");
         let presc = vec![0.0; sm.model.dofs.presc_targets.len()];
         let qs: Vec<f64> = phi.iter().map(|v| v * 1e-7).collect();
         let kin = sm.model.dofs.body_kinematics(&qs, &presc);

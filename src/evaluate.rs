@@ -334,7 +334,7 @@ fn scene_json(r: &SceneResult) -> Value {
     // branch's when the positive one completed)
     let pmax = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::max);
     let pmin = r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::min);
-    json!({
+    let mut v = json!({
         "status": r.status,
         "cause": r.cause,
         "p_reached_kPa": {"positive": pmax, "negative": pmin},
@@ -345,7 +345,17 @@ fn scene_json(r: &SceneResult) -> Value {
         "wall_time_s": r.wall_time_s,
         "rom_indicator": r.rom_indicator,
         "rom_fallback": r.rom_fallback,
-    })
+    });
+    if let Some(o) = v.as_object_mut() {
+        // vacuum with contact: where the path snapped, and its closest approach of two walls
+        if !r.snaps_kpa.is_empty() {
+            o.insert("snaps_kPa".into(), json!(r.snaps_kpa));
+        }
+        if let Some(d) = r.min_contact_distance_mm {
+            o.insert("min_contact_distance_mm".into(), json!(d));
+        }
+    }
+    v
 }
 
 fn torque_json(mode: &str, t: &TorqueRotation) -> Value {
@@ -558,6 +568,8 @@ mod tests {
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
         SceneResult {
+            snaps_kpa: Vec::new(),
+            min_contact_distance_mm: None,
             scene: name.into(),
             status: crate::scene::SceneStatus::Completed,
             cause: String::new(),

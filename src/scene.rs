@@ -341,6 +341,14 @@ pub struct SceneResult {
     /// pressure it was corrected at (the branch has no steps between 0 and it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub warm_start_kpa: Option<f64>,
+    /// The pressures at which the path snapped through a lost stability (vacuum with contact;
+    /// the states just past them are marked `snapped`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty", rename = "snaps_kPa")]
+    pub snaps_kpa: Vec<f64>,
+    /// With contact: the smallest contact distance over every state of the path (mm; ≥ 0: no
+    /// interpenetration), recorded or not.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_contact_distance_mm: Option<f64>,
 }
 
 /// The positive branch of a nearby design's scene (same scene, mesh topology and fidelity), to
@@ -403,6 +411,8 @@ impl SceneResult {
             rom_indicator: None,
             rom_fallback: None,
             warm_start_kpa: None,
+            snaps_kpa: Vec::new(),
+            min_contact_distance_mm: None,
         }
     }
 }
@@ -1047,6 +1057,8 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
             }
         }
     }
+    let snaps_kpa: Vec<f64> = steps.iter().filter(|s| s.snapped).map(|s| s.p_kpa).collect();
+    let min_contact_distance_mm = steps.iter().filter_map(|s| s.contact_distance_mm).reduce(f64::min);
     let mut order: Vec<usize> = (0..steps.len()).collect();
     order.sort_by(|&a, &b| steps[a].p_kpa.total_cmp(&steps[b].p_kpa));
     let steps: Vec<StepRecord> = order.iter().map(|&i| steps[i].clone()).collect();
@@ -1068,6 +1080,8 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
         _ => None,
     };
     Ok(SceneResult {
+        snaps_kpa,
+        min_contact_distance_mm,
         rom_indicator,
         rom_fallback: None,
         warm_start_kpa,

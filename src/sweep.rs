@@ -1464,6 +1464,8 @@ mod tests {
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {
         SceneResult {
+            snaps_kpa: Vec::new(),
+            min_contact_distance_mm: None,
             scene: name.into(),
             status: crate::scene::SceneStatus::LimitPoint,
             cause: String::new(),

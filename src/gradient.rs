@@ -82,6 +82,9 @@ pub struct SceneGradient {
     /// KS value − true max over the outer surface
     pub ks_gap_mm: f64,
     pub min_det_f: f64,
+    /// with contact: the closest approach of two cavity walls at the final state (mm)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_distance_mm: Option<f64>,
     pub dofs: usize,
     /// with a limit search: the pressure (kPa) at which the ramp continued from p fails (the
     /// pressure maximum / instability; at the last converged state), None = no failure up to the
@@ -111,6 +114,7 @@ impl SceneGradient {
             ks_rho_per_mm: rho,
             ks_gap_mm: f64::NAN,
             min_det_f: eq.record.min_det_f,
+            contact_distance_mm: eq.record.contact_distance_mm,
             dofs,
             p_limit_kpa: None,
             p_limit_cause: None,

@@ -60,6 +60,10 @@ pub enum Objective {
     EnergyDensity,
     Twist,
     Torque,
+    /// the bi-directional stroke |θ(+p) − θ(−p⁻)| of the rotation-free scene
+    Stroke,
+    /// Ω(+p) + Ω(−p⁻): both sides' energy densities
+    EnergyDensityBoth,
 }
 
 impl Objective {
@@ -68,6 +72,8 @@ impl Objective {
             "energy-density" => Some(Objective::EnergyDensity),
             "twist" => Some(Objective::Twist),
             "torque" => Some(Objective::Torque),
+            "stroke" => Some(Objective::Stroke),
+            "energy-density-both" => Some(Objective::EnergyDensityBoth),
             _ => None,
         }
     }
@@ -76,7 +82,13 @@ impl Objective {
             Objective::EnergyDensity => "energy-density",
             Objective::Twist => "twist",
             Objective::Torque => "torque",
+            Objective::Stroke => "stroke",
+            Objective::EnergyDensityBoth => "energy-density-both",
         }
+    }
+    /// Whether the objective has a vacuum side (evaluated at −p⁻ as well as at +p).
+    pub fn two_sided(self) -> bool {
+        matches!(self, Objective::Stroke | Objective::EnergyDensityBoth)
     }
     /// Reference value that scales the objective (and its unit).
     pub fn reference(self) -> (f64, &'static str) {
@@ -84,6 +96,8 @@ impl Objective {
             Objective::EnergyDensity => (100.0, "J/m3"),
             Objective::Twist => (10.0, "deg"),
             Objective::Torque => (0.1, "N*m"),
+            Objective::Stroke => (10.0, "deg"),
+            Objective::EnergyDensityBoth => (100.0, "J/m3"),
         }
     }
 }
@@ -111,6 +125,8 @@ pub struct OptProblem {
     pub opts: SceneOptions,
     pub ks_rho: f64,
     pub ballooning_limit_mm: f64,
+    /// p⁻ (kPa, > 0) of the two-sided objectives: their vacuum side is solved at −p⁻
+    pub vacuum_kpa: Option<f64>,
     pub max_evaluations: usize,
     pub xtol_rel: f64,
     pub ftol_rel: f64,
@@ -175,6 +191,9 @@ pub struct Evaluation {
     pub adjoint_solves: usize,
     pub time_s: f64,
     pub warm_started: bool,
+    /// the vacuum side of a two-sided objective (None for the others)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vacuum: Option<VacuumSide>,
     /// fidelity stage (0-based) and its mesh (`<Na>x<Nz>x<Nt>`)
     #[serde(default)]
     pub stage: usize,
@@ -190,6 +209,22 @@ pub struct Evaluation {
     pub g: Vec<f64>,
     #[serde(default, rename = "dg_scaled", deserialize_with = "null_nan::vec2")]
     pub dg: Vec<Vec<f64>>,
+}
+
+/// The vacuum side of a two-sided evaluation: the scenes' values at −p⁻.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct VacuumSide {
+    #[serde(rename = "p_kPa")]
+    pub p_kpa: f64,
+    pub theta_deg: Option<f64>,
+    #[serde(rename = "tau_Nm")]
+    pub tau_nm: Option<f64>,
+    /// Ω of the pair at −p⁻ (signed by the letter's rule, as at +p)
+    #[serde(rename = "omega_J_m3")]
+    pub omega_j_m3: Option<f64>,
+    /// the closest approach of two cavity walls at −p⁻ (mm; None without contact)
+    #[serde(rename = "min_contact_distance_mm", default, skip_serializing_if = "Option::is_none")]
+    pub min_contact_distance_mm: Option<f64>,
 }
 
 /// Reading back numbers that JSON wrote as null (serde_json writes NaN and ±∞ so): NaN.
@@ -228,6 +263,7 @@ impl Evaluation {
             adjoint_solves: 0,
             time_s: 0.0,
             warm_started: false,
+            vacuum: None,
             stage: 0,
             mesh: String::new(),
             f,
@@ -471,6 +507,47 @@ impl OptProblem {
             }
         }
         ev.max_radius_mm = dg.scenes.values().map(|s| s.max_radius_mm).fold(0.0, f64::max);
+        // the vacuum side of a two-sided objective, at −p⁻ on the full model of the same mesh (the
+        // reduced models cover positive pressures only); its gradients w.r.t. the design only (p⁻
+        // is fixed: the p_kPa variable is the positive side's)
+        let vac = match (self.objective.two_sided(), self.vacuum_kpa) {
+            (true, Some(pv)) => {
+                let scenes: Vec<SceneKind> = if self.objective == Objective::Stroke { self.scenes.iter().copied().filter(|k| k.rotation_free()).collect() } else { self.scenes.clone() };
+                let mut vopts = self.opts.clone();
+                vopts.rom = None;
+                let vg = match design_gradient(&geom, &vopts, &scenes, -pv, self.ks_rho, None, None) {
+                    Ok(g) => g,
+                    Err(e) => return fail(ev, format!("model-error (vacuum side): {e}")),
+                };
+                ev.newton_iterations += vg.newton_iterations;
+                ev.adjoint_solves += vg.adjoint_solves;
+                for (name, s) in &vg.scenes {
+                    ev.scenes.insert(format!("{name}@vacuum"), (s.status, s.p_kpa));
+                }
+                if let Some(s) = vg.scenes.values().find(|s| s.status != SceneStatus::Converged) {
+                    return fail(ev, format!("failed-vacuum: {} {} at {:.3} kPa: {}", s.scene, s.status, s.p_kpa, s.cause));
+                }
+                let key = if self.scenes.contains(&SceneKind::Free) { "combined" } else { "pure-twist" };
+                ev.vacuum = Some(VacuumSide {
+                    p_kpa: -pv,
+                    theta_deg: vg.scenes.values().find_map(|s| s.values.get("theta_deg").copied()),
+                    tau_nm: vg.scenes.values().find_map(|s| s.values.get("tau_Nm").copied()),
+                    omega_j_m3: vg.omega.get(key).map(|o| o.value),
+                    min_contact_distance_mm: vg.scenes.values().filter_map(|s| s.contact_distance_mm).reduce(f64::min),
+                });
+                Some(vg)
+            }
+            _ => None,
+        };
+        // a vacuum-side gradient without its pressure component
+        let design_only = |g: &BTreeMap<String, f64>| -> BTreeMap<String, f64> { g.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect() };
+        let add = |a: &BTreeMap<String, f64>, b: &BTreeMap<String, f64>, sb: f64| -> BTreeMap<String, f64> {
+            let mut c = a.clone();
+            for (k, v) in b {
+                *c.entry(k.clone()).or_insert(0.0) += sb * v;
+            }
+            c
+        };
         // the objective and its gradient by parameter name
         let (obj, grad): (f64, BTreeMap<String, f64>) = match self.objective {
             Objective::EnergyDensity => {
@@ -478,6 +555,24 @@ impl OptProblem {
                 match dg.omega.get(key) {
                     Some(o) => (o.value, o.gradient.clone()),
                     None => return fail(ev, "model-error: no pair of scenes for the energy density".into()),
+                }
+            }
+            Objective::EnergyDensityBoth => {
+                let key = if self.scenes.contains(&SceneKind::Free) { "combined" } else { "pure-twist" };
+                match (dg.omega.get(key), vac.as_ref().and_then(|v| v.omega.get(key))) {
+                    (Some(o), Some(ov)) => (o.value + ov.value, add(&o.gradient, &design_only(&ov.gradient), 1.0)),
+                    _ => return fail(ev, "model-error: no pair of scenes for the energy density on both sides".into()),
+                }
+            }
+            Objective::Stroke => {
+                let th = |g: &DesignGradient| g.scenes.values().find(|s| s.values.contains_key("theta_deg")).map(|s| (s.values["theta_deg"], s.gradients["theta_deg"].clone()));
+                match (th(&dg), vac.as_ref().and_then(th)) {
+                    (Some((tp, gp)), Some((tv, gv))) => {
+                        let d = tp - tv;
+                        let sg = if d < 0.0 { -1.0 } else { 1.0 };
+                        (d.abs(), add(&gp, &design_only(&gv), -1.0).into_iter().map(|(k, g)| (k, sg * g)).collect())
+                    }
+                    _ => return fail(ev, "model-error: no rotation-free scene gives theta_deg on both sides".into()),
                 }
             }
             Objective::Twist | Objective::Torque => {
@@ -1238,7 +1333,13 @@ pub fn run_selected(
 pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Validated) -> anyhow::Result<(OptProblem, crate::problem::OptimiseSection)> {
     use anyhow::{anyhow, bail};
     let sec = problem.optimise.clone().ok_or_else(|| anyhow!("the problem has no [optimise] section (see problems/README.md)"))?;
-    let objective = Objective::parse(&sec.objective).ok_or_else(|| anyhow!("optimise.objective = '{}' (expected energy-density, twist or torque)", sec.objective))?;
+    let objective = Objective::parse(&sec.objective).ok_or_else(|| anyhow!("optimise.objective = '{}' (expected energy-density, twist, torque, stroke or energy-density-both)", sec.objective))?;
+    match (objective.two_sided(), sec.vacuum_kpa) {
+        (true, None) => bail!("optimise.objective = {} needs optimise.vacuum_kPa (p⁻ > 0: the vacuum side is solved at −p⁻)", objective.name()),
+        (true, Some(pv)) if !(pv.is_finite() && pv > 0.0 && pv <= 100.0) => bail!("optimise.vacuum_kPa = {pv} must be in (0, 100] (a vacuum below −100 kPa is not physical)"),
+        (false, Some(_)) => bail!("optimise.vacuum_kPa is used only by the two-sided objectives (stroke, energy-density-both), not by {}", objective.name()),
+        _ => {}
+    }
     let p_max = match v.load {
         crate::problem::LoadPlan::Ramp(p) => p,
         _ => bail!("optimise needs load.p_max_kPa (the upper bound of the pressure), not load.pressures_kPa"),
@@ -1248,14 +1349,14 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
     }
     let has = |k: SceneKind| v.scenes.contains(&k);
     match objective {
-        Objective::EnergyDensity => {
+        Objective::EnergyDensity | Objective::EnergyDensityBoth => {
             if !((has(SceneKind::Free) && has(SceneKind::Blocked)) || (has(SceneKind::PureTwist) && has(SceneKind::PureTwistBlocked))) {
-                bail!("optimise.objective = energy-density needs scenes.run = [free, blocked] or [pure-twist, pure-twist-blocked]");
+                bail!("optimise.objective = {} needs scenes.run = [free, blocked] or [pure-twist, pure-twist-blocked]", objective.name());
             }
         }
-        Objective::Twist => {
+        Objective::Twist | Objective::Stroke => {
             if !(has(SceneKind::Free) || has(SceneKind::PureTwist)) {
-                bail!("optimise.objective = twist needs a rotation-free scene (free or pure-twist) in scenes.run");
+                bail!("optimise.objective = {} needs a rotation-free scene (free or pure-twist) in scenes.run", objective.name());
             }
         }
         Objective::Torque => {
@@ -1367,6 +1468,7 @@ pub fn build_problem(problem: &crate::problem::Problem, v: &crate::problem::Vali
             opts,
             ks_rho: sec.ks_rho_per_mm,
             ballooning_limit_mm: problem.scenes.ballooning_limit_mm,
+            vacuum_kpa: sec.vacuum_kpa,
             max_evaluations: sec.max_evaluations,
             xtol_rel: sec.xtol_rel,
             ftol_rel: sec.ftol_rel,

@@ -100,10 +100,16 @@ pub struct Problem {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OptimiseSection {
-    /// `energy-density` (Ω = τθ/(8V) of the rotation-free and rotation-held scenes), `twist` (|θ|)
-    /// or `torque` (|τ|)
+    /// `energy-density` (Ω = τθ/(8V) of the rotation-free and rotation-held scenes), `twist` (|θ|),
+    /// `torque` (|τ|), or one of the two-sided objectives (they need `vacuum_kPa`): `stroke`
+    /// (the bi-directional stroke |θ(+p) − θ(−p⁻)| of the rotation-free scene) and
+    /// `energy-density-both` (Ω(+p) + Ω(−p⁻), the sum of both sides' energy densities)
     #[serde(default = "default_objective")]
     pub objective: String,
+    /// p⁻ (kPa, > 0): the vacuum side of the two-sided objectives is evaluated at −p⁻ (fixed; a
+    /// path through the wall's collapse needs `scenes.contact`)
+    #[serde(rename = "vacuum_kPa", default, skip_serializing_if = "Option::is_none")]
+    pub vacuum_kpa: Option<f64>,
     /// the variables; the others stay at [design] (and p at load.p_max_kPa)
     #[serde(default = "default_variables")]
     pub variables: Vec<String>,

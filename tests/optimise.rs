@@ -186,6 +186,8 @@ fn optimise_rejects_bad_sections() {
         ("optimise.stages=[{max_evaluations=5}]", "optimise.stages[0]: give either preset or mesh"),
         ("optimise.stages=[{preset=\"huge\", max_evaluations=5}]", "optimise.stages[0].preset"),
         ("optimise.stages=[{preset=\"coarse\", max_evaluations=80}, {preset=\"default\", max_evaluations=80}]", "sum to 160"),
+        ("optimise.objective=\"stroke\"", "needs optimise.vacuum_kPa"),
+        ("optimise.vacuum_kPa=68", "only by the two-sided objectives"),
     ] {
         // this build's optimisers first, so that the case's own value (later) is what is tested
         let out = bin().args(["optimise", "problems/energy-density.toml", "--set", optimisers(), "--set", set, "--out"]).arg(&dir).output().unwrap();
@@ -197,4 +199,54 @@ fn optimise_rejects_bad_sections() {
     let out = bin().args(["optimise", "problems/paper-example.toml", "--out"]).arg(&dir).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("[optimise]"));
+}
+
+/// The two-sided objectives (issue 19): the bi-directional stroke |θ(+p) − θ(−p⁻)| and
+/// Ω(+p) + Ω(−p⁻) with their adjoint gradients (the vacuum side's without its fixed pressure)
+/// equal central differences of the optimiser's own evaluation, coarse mesh, p⁻ = 15 kPa (the
+/// walls still apart: the contact-state adjoint is checked in tests/contact.rs).
+#[test]
+fn two_sided_objectives_match_central_differences() {
+    use twistopt::optimise::build_problem;
+    use twistopt::problem::Problem;
+    for (objective, vacuum_ref) in [("stroke", None), ("energy-density-both", Some(()))] {
+        let sets: Vec<String> = vec![
+            "fidelity.preset=\"coarse\"".into(),
+            format!("optimise.objective=\"{objective}\""),
+            "optimise.vacuum_kPa=15".into(),
+            "optimise.variables=[\"l_mm\", \"alpha_deg\", \"p_kPa\"]".into(),
+        ];
+        let problem = Problem::load(std::path::Path::new("problems/energy-density.toml"), &sets).unwrap();
+        let v = problem.validate().unwrap();
+        let (op, _) = build_problem(&problem, &v).unwrap();
+        let x = vec![0.4, 0.5, 0.3];
+        let e = op.evaluate(&x, &mut None, None);
+        assert_eq!(e.status, "ok", "{objective}: {}", e.status);
+        let vac = e.vacuum.as_ref().expect("vacuum side");
+        assert!((vac.p_kpa + 15.0).abs() < 1e-12);
+        let (tp, tv) = (e.theta_deg.unwrap(), vac.theta_deg.unwrap());
+        // the two sides twist opposite ways
+        assert!(tp * tv < 0.0, "θ(+p) = {tp}, θ(−p⁻) = {tv}");
+        match vacuum_ref {
+            None => assert!((e.objective - (tp - tv).abs()).abs() < 1e-9 * e.objective.abs()),
+            Some(()) => {
+                let om = vac.omega_j_m3.unwrap();
+                let op_ = twistopt::scene::energy_density(tp, e.tau_nm.unwrap());
+                assert!(om > 0.0 && (e.objective - (op_ + om)).abs() < 1e-9 * e.objective.abs(), "{} vs {op_} + {om}", e.objective);
+            }
+        }
+        let h = 1e-4;
+        for i in 0..x.len() {
+            let mut xp = x.clone();
+            xp[i] += h;
+            let mut xm = x.clone();
+            xm[i] -= h;
+            let (ep, em) = (op.evaluate(&xp, &mut None, None), op.evaluate(&xm, &mut None, None));
+            assert!(ep.status == "ok" && em.status == "ok");
+            let fd = (ep.f - em.f) / (2.0 * h);
+            let err = (e.df[i] - fd).abs() / e.df.iter().map(|d| d.abs()).fold(0.0, f64::max);
+            println!("{objective} {}: adjoint {:.8e} fd {fd:.8e} rel {err:.1e}", op.variables[i].name, e.df[i]);
+            assert!(err < 1e-5, "{objective} {}: adjoint {} vs fd {fd}", op.variables[i].name, e.df[i]);
+        }
+    }
 }

@@ -641,6 +641,7 @@ fn best_json(obj: &Objective, runs: &[RunResult], fixed: &std::collections::BTre
                 "evaluations": total, "status": if r.kkt.is_some_and(|k| k < 1e-2) { "optimal" } else { "feasible" },
                 "optimiser": r.optimiser, "start": r.start, "kkt": r.kkt, "mesh": e.mesh,
                 "constraint_tolerance": FEAS_TOL,
+                "vacuum": e.vacuum,
             })
         }
         None => json!({

@@ -245,9 +245,9 @@ pub fn grid_from_section(section: &toml::Table) -> Result<Grid> {
                 }
             }
             // (read by SweepConfig::new)
-            "warm_start" => {}
+            "warm_start" | "vacuum_kPa" => {}
             name if space.get(name).is_some() => axes.push(Axis { name: name.to_string(), values: axis_values(name, v)? }),
-            other => bail!("sweep.{other}: unknown key (expected grid, every, range, warm_start or a design parameter: {})", space.names().join(", ")),
+            other => bail!("sweep.{other}: unknown key (expected grid, every, range, warm_start, vacuum_kPa or a design parameter: {})", space.names().join(", ")),
         }
     }
     let grid = match (named, axes.is_empty()) {
@@ -354,6 +354,9 @@ pub struct SweepConfig {
     /// `sweep.warm_start`: each design's positive ramps start from its predecessor's states
     /// along the grid's last axis ([`crate::scene::WarmStart`])
     pub warm_start: bool,
+    /// `sweep.vacuum_kPa` = p⁻: each design's scenes are also ramped to −p⁻ (the vacuum side,
+    /// [`add_vacuum_side`]); None: the positive side only
+    pub vacuum_kpa: Option<f64>,
     /// what the user should know before the run (printed by the CLI)
     pub warnings: Vec<String>,
 }
@@ -421,6 +424,16 @@ impl SweepConfig {
             None => false,
             Some(w) => w.as_bool().ok_or_else(|| anyhow!("sweep.warm_start must be true or false"))?,
         };
+        let vacuum_kpa = match section.and_then(|s| s.get("vacuum_kPa")) {
+            None => None,
+            Some(x) => {
+                let pv = x.as_float().or_else(|| x.as_integer().map(|i| i as f64)).ok_or_else(|| anyhow!("sweep.vacuum_kPa must be a number (p⁻ in kPa, > 0)"))?;
+                if !(pv.is_finite() && pv > 0.0 && pv <= 100.0) {
+                    bail!("sweep.vacuum_kPa = {pv} must be in (0, 100] (the vacuum side is ramped to −p⁻; below −100 kPa is not physical)");
+                }
+                Some(pv)
+            }
+        };
         let mut shard = shard;
         if warm_start {
             shard.block = grid.axes.last().map_or(1, |a| a.values.len().max(1)) as u64;
@@ -429,7 +442,10 @@ impl SweepConfig {
         if warm_start && v.scenes.iter().any(|k| matches!(k, SceneKind::PureTwist | SceneKind::PureTwistBlocked)) {
             warnings.push(PURE_TWIST_WARM_WARNING.to_string());
         }
-        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None, warm_start, warnings })
+        if vacuum_kpa.is_some() && problem.scenes.contact.is_none() {
+            warnings.push("sweep.vacuum_kPa without scenes.contact: a design's vacuum ramp stops where two cavity walls meet (status self-contact)".to_string());
+        }
+        Ok(SweepConfig { problem, grid, shard, p_max_kpa, indices: None, warm_start, vacuum_kpa, warnings })
     }
 
     /// Restrict the sweep to these grid indices (sorted and de-duplicated; each must be below
@@ -506,11 +522,15 @@ impl SweepConfig {
     pub fn manifest(&self) -> Result<Manifest> {
         let problem = self.problem_json();
         let fidelity = self.fidelity()?;
-        let key = match &self.indices {
+        let mut key = match &self.indices {
             // (a sweep of the whole grid keeps the hash earlier versions wrote)
-            None => serde_json::to_string(&json!({"grid": self.grid, "problem": problem, "fidelity": fidelity}))?,
-            Some(s) => serde_json::to_string(&json!({"grid": self.grid, "problem": problem, "fidelity": fidelity, "indices": s}))?,
+            None => json!({"grid": self.grid, "problem": problem, "fidelity": fidelity}),
+            Some(s) => json!({"grid": self.grid, "problem": problem, "fidelity": fidelity, "indices": s}),
         };
+        if let Some(pv) = self.vacuum_kpa {
+            key["vacuum_kPa"] = json!(pv);
+        }
+        let key = serde_json::to_string(&key)?;
         let mut h = fnv::FnvHasher::default();
         std::hash::Hasher::write(&mut h, key.as_bytes());
         Ok(Manifest {
@@ -524,6 +544,7 @@ impl SweepConfig {
             sweep_hash: format!("{:016x}", std::hash::Hasher::finish(&h)),
             shard: self.shard,
             warm_start: self.warm_start,
+            vacuum_kpa: self.vacuum_kpa,
         })
     }
 }
@@ -550,6 +571,9 @@ pub struct Manifest {
     /// unsharded sweep may be resumed with either; shards differ, see [`Shard`])
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub warm_start: bool,
+    /// `sweep.vacuum_kPa`: the vacuum side's p⁻ (absent: positive side only)
+    #[serde(default, rename = "vacuum_kPa", skip_serializing_if = "Option::is_none")]
+    pub vacuum_kpa: Option<f64>,
 }
 
 impl Manifest {
@@ -594,6 +618,10 @@ impl Manifest {
         }
         if self.shard != other.shard {
             why.push(format!("shard {}/{} vs {}/{}", self.shard.index, self.shard.count, other.shard.index, other.shard.count));
+        }
+        if self.vacuum_kpa != other.vacuum_kpa {
+            let d = |v: Option<f64>| v.map_or("none".to_string(), |p| format!("{p} kPa"));
+            why.push(format!("sweep.vacuum_kPa {} vs {}", d(self.vacuum_kpa), d(other.vacuum_kpa)));
         }
         if self.indices != other.indices {
             let d = |s: &Option<Vec<u64>>| s.as_ref().map_or("the whole grid".to_string(), |s| format!("{} selected indices", s.len()));
@@ -709,6 +737,153 @@ pub struct Row {
     #[serde(rename = "p_max_kPa")]
     pub p_max_kpa: f64,
     pub wall_time_s: f64,
+    /// with `sweep.vacuum_kPa`: the scenes ramped to −p⁻ ([`add_vacuum_side`])
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vacuum: Option<VacuumSummary>,
+}
+
+/// The vacuum side of a design: every scene ramped from 0 to −p⁻ (on the full model; with
+/// `scenes.contact` through the wall's collapse).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VacuumSummary {
+    /// −p⁻ (kPa)
+    #[serde(rename = "p_target_kPa")]
+    pub p_target_kpa: f64,
+    /// per mode: θ and τ at each scene's most negative converged pressure, and Ω at the common
+    /// (less negative) one by the letter's rule
+    pub modes: BTreeMap<String, VacuumMode>,
+    pub scenes: BTreeMap<String, VacuumScene>,
+    pub wall_time_s: f64,
+}
+
+/// One mode's vacuum-side values. Absent values are `null`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VacuumMode {
+    pub theta_deg: Option<f64>,
+    #[serde(rename = "p_theta_kPa")]
+    pub p_theta_kpa: Option<f64>,
+    #[serde(rename = "tau_Nm")]
+    pub tau_nm: Option<f64>,
+    #[serde(rename = "p_tau_kPa")]
+    pub p_tau_kpa: Option<f64>,
+    #[serde(rename = "omega_J_m3")]
+    pub omega_j_m3: Option<f64>,
+    #[serde(rename = "p_omega_kPa")]
+    pub p_omega_kpa: Option<f64>,
+    pub theta_omega_deg: Option<f64>,
+    #[serde(rename = "tau_omega_Nm")]
+    pub tau_omega_nm: Option<f64>,
+}
+
+/// One scene's vacuum ramp.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VacuumScene {
+    /// `completed` when −p⁻ was reached, else what ended the ramp
+    pub status: SceneStatus,
+    pub cause: String,
+    /// most negative converged pressure (kPa)
+    #[serde(rename = "p_reached_kPa")]
+    pub p_reached_kpa: Option<f64>,
+    pub steps: usize,
+    pub newton_iterations: usize,
+    /// where the path snapped through a lost stability (contact only)
+    #[serde(rename = "snaps_kPa", default, skip_serializing_if = "Vec::is_empty")]
+    pub snaps_kpa: Vec<f64>,
+    /// the closest approach of two cavity walls over the ramp (contact only)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_contact_distance_mm: Option<f64>,
+    pub wall_time_s: f64,
+}
+
+/// Ramp each of the row's scenes from 0 to −p⁻ and record the vacuum side in `row.vacuum` (and
+/// its time in `row.wall_time_s`). The reduced models cover positive pressures only: the vacuum
+/// side runs on the full model of the same mesh. Never fails: a panic or a model error is the
+/// scene's status.
+pub fn add_vacuum_side(row: &mut Row, design: &Design, range: RangePolicy, v: &Validated, opts: &SceneOptions, p_vacuum_kpa: f64) {
+    let t0 = Instant::now();
+    let mut vs = VacuumSummary { p_target_kpa: -p_vacuum_kpa, modes: BTreeMap::new(), scenes: BTreeMap::new(), wall_time_s: 0.0 };
+    let geom = match ActuatorGeometry::new(design, range) {
+        Ok(g) => g,
+        Err(_) => return, // (the row already says invalid-geometry)
+    };
+    let mut vopts = opts.clone();
+    vopts.rom = None;
+    let plan = LoadPlan::Targets(vec![-p_vacuum_kpa]);
+    let mut results: Vec<SceneResult> = Vec::new();
+    for &kind in &v.scenes {
+        let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| crate::scene::run_pressure(&geom, &vopts, kind, &plan.targets())));
+        match run {
+            Ok(Ok(mut r)) => {
+                select_steps(&mut r, &plan);
+                results.push(r);
+            }
+            Ok(Err(e)) => {
+                vs.scenes.insert(kind.name().into(), VacuumScene { status: SceneStatus::ModelError, cause: e.to_string().replace('\n', " "), p_reached_kpa: None, steps: 0, newton_iterations: 0, snaps_kpa: vec![], min_contact_distance_mm: None, wall_time_s: 0.0 });
+            }
+            Err(_) => {
+                vs.scenes.insert(kind.name().into(), VacuumScene { status: SceneStatus::ModelError, cause: "the vacuum ramp panicked".into(), p_reached_kpa: None, steps: 0, newton_iterations: 0, snaps_kpa: vec![], min_contact_distance_mm: None, wall_time_s: 0.0 });
+            }
+        }
+    }
+    // Ω's common pressure as an exact step of both scenes of each pair
+    for (_, fk, bk) in MODES {
+        let (fi, bi) = (results.iter().position(|r| r.scene == fk.name()), results.iter().position(|r| r.scene == bk.name()));
+        if let (Some(fi), Some(bi)) = (fi, bi) {
+            let (a, b) = if fi < bi {
+                let (l, r) = results.split_at_mut(bi);
+                (&mut l[fi], &mut r[0])
+            } else {
+                let (l, r) = results.split_at_mut(fi);
+                (&mut r[0], &mut l[bi])
+            };
+            crate::evaluate::complete_pair(&geom, &vopts, a, b);
+        }
+    }
+    fn most_negative(steps: &[StepRecord]) -> Option<&StepRecord> {
+        steps.iter().filter(|s| s.p_kpa < 0.0 && s.p_kpa.is_finite()).min_by(|a, b| a.p_kpa.total_cmp(&b.p_kpa))
+    }
+    for r in &results {
+        vs.scenes.insert(
+            r.scene.clone(),
+            VacuumScene {
+                status: r.status,
+                cause: r.cause.replace('\n', " "),
+                p_reached_kpa: most_negative(&r.steps).map(|s| s.p_kpa),
+                steps: r.steps.len(),
+                newton_iterations: r.newton_iterations,
+                snaps_kpa: r.snaps_kpa.clone(),
+                min_contact_distance_mm: r.min_contact_distance_mm,
+                wall_time_s: r.wall_time_s,
+            },
+        );
+    }
+    let find = |k: SceneKind| results.iter().find(|r| r.scene == k.name());
+    for (name, fk, bk) in MODES {
+        if !(v.scenes.contains(&fk) || v.scenes.contains(&bk)) {
+            continue;
+        }
+        let mut m = VacuumMode::default();
+        if let Some(s) = find(fk).and_then(|f| most_negative(&f.steps)) {
+            m.theta_deg = fin(s.theta_deg);
+            m.p_theta_kpa = fin(s.p_kpa);
+        }
+        if let Some(s) = find(bk).and_then(|b| most_negative(&b.steps)) {
+            m.tau_nm = fin(s.tau_nm);
+            m.p_tau_kpa = fin(s.p_kpa);
+        }
+        if let (Some(f), Some(b)) = (find(fk), find(bk)) {
+            if let Some(o) = common_pressure(&f.steps, &b.steps, false).and_then(|(pc, _, _)| omega_at_pressure(&f.steps, &b.steps, pc)) {
+                m.omega_j_m3 = fin(o.omega_j_m3);
+                m.p_omega_kpa = fin(o.p_kpa);
+                m.theta_omega_deg = fin(o.theta_deg);
+                m.tau_omega_nm = fin(o.tau_nm);
+            }
+        }
+        vs.modes.insert(name.to_string(), m);
+    }
+    vs.wall_time_s = t0.elapsed().as_secs_f64();
+    row.wall_time_s += vs.wall_time_s;
+    row.vacuum = Some(vs);
 }
 
 /// The row id of a design.
@@ -818,6 +993,7 @@ fn empty_row(index: u64, design: &Design, p_max: f64) -> Row {
         scenes: BTreeMap::new(),
         p_max_kpa: p_max,
         wall_time_s: 0.0,
+        vacuum: None,
     }
 }
 
@@ -1156,7 +1332,10 @@ pub fn run_sweep(cfg: &SweepConfig, out: &Path, opts: &RunOptions, log: impl Fn(
                 }
                 // (only from the line's previous grid point)
                 let from = warm.as_ref().filter(|(j, _)| *j + 1 == *i).map(|(_, w)| w);
-                let (row, offer) = evaluate_design_guarded_warm(*i, d, cfg.grid.range, &v, &sopts, cfg.p_max_kpa, from);
+                let (mut row, offer) = evaluate_design_guarded_warm(*i, d, cfg.grid.range, &v, &sopts, cfg.p_max_kpa, from);
+                if let Some(pv) = cfg.vacuum_kpa {
+                    add_vacuum_side(&mut row, d, cfg.grid.range, &v, &sopts, pv);
+                }
                 warm = Some((*i, offer));
                 if let Err(e) = writer.append(&row) {
                     if let Ok(mut w) = write_error.lock() {

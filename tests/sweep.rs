@@ -266,3 +266,53 @@ fn bad_input_is_one_line() {
     let s = String::from_utf8_lossy(&r.stdout);
     assert!(r.status.success() && s.contains("39864 designs (r_mm 24 × l_mm 11 × alpha_deg 151)"), "{s}");
 }
+
+/// `sweep.vacuum_kPa` (issue 19): every design is also ramped to −p⁻ (here 15 kPa, before the
+/// walls meet, on a 12x4x1 sector) and its row carries the vacuum side: both scenes completed,
+/// θ and τ opposite to the positive side's, Ω > 0 at −15 kPa; a resume with another p⁻ is refused.
+#[test]
+fn vacuum_side_rows() {
+    let d = dir("sweep-vacuum");
+    let problem = write_problem(
+        &d,
+        r#"
+[load]
+p_max_kPa = 20
+[fidelity]
+mesh = "12x4x1"
+[sweep]
+vacuum_kPa = 15
+r_mm = [8.660254037844386]
+l_mm = [10]
+alpha_deg = [60, 180]
+"#,
+    );
+    let out = d.join("out");
+    let o = sweep(&problem, &out, &[]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("without scenes.contact") || String::from_utf8_lossy(&o.stdout).contains("without scenes.contact"), "no warning");
+    let r = rows(&out);
+    assert_eq!(r.len(), 2);
+    for row in r.values() {
+        assert_eq!(row["status"], "ok", "{row}");
+        let vac = &row["vacuum"];
+        assert_eq!(vac["p_target_kPa"].as_f64(), Some(-15.0));
+        for s in ["free", "blocked"] {
+            assert_eq!(vac["scenes"][s]["status"], "completed", "{vac}");
+            assert_eq!(vac["scenes"][s]["p_reached_kPa"].as_f64(), Some(-15.0), "{vac}");
+        }
+        let m = &vac["modes"]["combined"];
+        let (th, tau, om) = (m["theta_deg"].as_f64().unwrap(), m["tau_Nm"].as_f64().unwrap(), m["omega_J_m3"].as_f64().unwrap());
+        assert!(th * row["theta_omega_deg"].as_f64().unwrap() < 0.0 && tau * row["tau_omega_Nm"].as_f64().unwrap() < 0.0, "{row}");
+        assert!(om > 0.0 && m["p_omega_kPa"].as_f64() == Some(-15.0), "{m}");
+        // Ω at −15 kPa from θ and τ there (the letter's rule)
+        let expect = twistopt::scene::energy_density(th.abs(), tau.abs());
+        assert!((om - expect).abs() < 1e-9 * om, "{om} vs {expect}");
+    }
+    // a resume with another p⁻ is refused
+    let o = bin().arg("sweep").arg(&problem).args(["--threads", "1", "--set", "sweep.vacuum_kPa=20", "--out"]).arg(&out).output().unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("vacuum_kPa"), "{}", String::from_utf8_lossy(&o.stderr));
+    // bad values are refused in one line
+    let o = bin().arg("sweep").arg(&problem).args(["--threads", "1", "--set", "sweep.vacuum_kPa=-5", "--out"]).arg(d.join("bad")).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("sweep.vacuum_kPa"));
+}

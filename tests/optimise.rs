@@ -215,6 +215,7 @@ fn two_sided_objectives_match_central_differences() {
             format!("optimise.objective=\"{objective}\""),
             "optimise.vacuum_kPa=15".into(),
             "optimise.variables=[\"l_mm\", \"alpha_deg\", \"p_kPa\"]".into(),
+            optimisers().into(),
         ];
         let problem = Problem::load(std::path::Path::new("problems/energy-density.toml"), &sets).unwrap();
         let v = problem.validate().unwrap();

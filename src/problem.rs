@@ -43,7 +43,9 @@
 //!                               # frictionless self-contact of the cavity wall (vacuum): the
 //!                               # barrier's reach d̂, the contact pressure at d̂/10, the reference
 //!                               # distance of candidate wall pairs, the crease blend width; a
-//!                               # vacuum ramp then snaps through the wall's collapse and goes on
+//!                               # vacuum ramp then snaps through the wall's collapse and goes on;
+//!                               # optional axle_radius_mm = 2: the pure-twist scenes' rigid axle
+//!                               # along the axis, which the cavity wall then also contacts
 //!
 //! [torque_rotation]             # optional: the letter's Fig. 4b (torque vs prescribed rotation)
 //! pressures_kPa = [30, 71]      # one line per pressure (non-zero)
@@ -490,6 +492,14 @@ impl Problem {
                     bail!("scenes.contact.{k} = {v} must be finite and positive");
                 }
             }
+            if let Some(a) = c.axle_radius_mm {
+                if !(a.is_finite() && a > 0.0) {
+                    bail!("scenes.contact.axle_radius_mm = {a} must be finite and positive");
+                }
+                if !scenes.iter().any(|k| matches!(k, crate::scene::SceneKind::PureTwist | crate::scene::SceneKind::PureTwistBlocked)) {
+                    bail!("scenes.contact.axle_radius_mm: the axle is in the pure-twist scenes only, and scenes.run has none");
+                }
+            }
             if c.reach_mm <= 2.0 * crate::geometry::T_WALL {
                 bail!("scenes.contact.reach_mm = {} must exceed the excluded neighbourhood 2t = {} mm", c.reach_mm, 2.0 * crate::geometry::T_WALL);
             }
@@ -731,6 +741,14 @@ mod tests {
         assert!(e.contains("must exceed the excluded neighbourhood"), "{e}");
         let e = err(BASE, &["scenes.contact={reach = 2.0}"]);
         assert!(e.contains("unknown field `reach`"), "{e}");
+        // the axle: pure-twist scenes only, a positive radius
+        let e = err(BASE, &["scenes.contact={axle_radius_mm = 2.0}", "scenes.run=[\"free\"]"]);
+        assert!(e.contains("pure-twist scenes only"), "{e}");
+        let e = err(BASE, &["scenes.contact={axle_radius_mm = -2.0}", "scenes.run=[\"pure-twist\"]"]);
+        assert!(e.starts_with("scenes.contact.axle_radius_mm = -2 must be finite and positive"), "{e}");
+        let p = Problem::from_str_with(BASE, "t", &["scenes.contact={axle_radius_mm = 2.0}".into(), "scenes.run=[\"pure-twist\"]".into()]).unwrap();
+        let v = p.validate().unwrap();
+        assert_eq!(p.scene_options(&v).contact.unwrap().axle_radius_mm, Some(2.0));
     }
 
     #[test]

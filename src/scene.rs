@@ -140,6 +140,12 @@ pub struct ContactOptions {
     /// the width of the band over which neighbouring wall triangles' distances are blended
     #[serde(default = "default_blend_mm")]
     pub blend_mm: f64,
+    /// The radius of the rigid axle that the pure-twist scenes embed along the axis (the letter's
+    /// "rigid axle ... inside the actuator"; it gives no radius): the cavity wall's contact with
+    /// it, frictionless, by the same barrier. None: the axle holds the caps' axial motion only.
+    /// Other scenes have no axle.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axle_radius_mm: Option<f64>,
 }
 
 fn default_dhat_mm() -> f64 {
@@ -164,7 +170,7 @@ fn default_blend_mm() -> f64 {
 
 impl Default for ContactOptions {
     fn default() -> Self {
-        ContactOptions { dhat_mm: default_dhat_mm(), pressure_mpa: default_contact_pressure(), reach_mm: default_reach_mm(), blend_mm: default_blend_mm() }
+        ContactOptions { dhat_mm: default_dhat_mm(), pressure_mpa: default_contact_pressure(), reach_mm: default_reach_mm(), blend_mm: default_blend_mm(), axle_radius_mm: None }
     }
 }
 
@@ -490,6 +496,16 @@ impl SceneModel {
             // shortest triangle edge, moves with the shape, which the adjoint does not follow:
             // measured 1e-4–1e-1 off central differences in the blocked scene)
             con.blend = c.blend_mm;
+            if let (Some(a), SceneKind::PureTwist | SceneKind::PureTwistBlocked) = (c.axle_radius_mm, kind) {
+                let inner = cavity_nodes.iter().map(|&n| model.mesh.nodes[n][0].hypot(model.mesh.nodes[n][1])).fold(f64::INFINITY, f64::min);
+                if !(a > 0.0 && a < inner) {
+                    return Err(SceneError::Model(twistopt_solver::model::ModelError::Mesh(format!(
+                        "scenes.contact.axle_radius_mm = {a} does not fit inside the cavity: its wall comes within {inner:.3} mm of the axis"
+                    ))));
+                }
+                let slaves = twistopt_solver::contact::nodal_areas(&model.mesh, &cavity);
+                con.axle = Some(twistopt_solver::contact::Axle { radius: a, slaves });
+            }
             model.set_contact(con)?;
         }
         // the sparse tangent's setup is built where the full model will be solved (a reduced

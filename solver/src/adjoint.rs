@@ -203,10 +203,9 @@ pub fn evaluate<D: Scalar>(model: &Model, inp: &Inputs<D>, loads: &Loads) -> Res
         let xre: Vec<[f64; 3]> = xd.iter().map(|p| [p[0].re(), p[1].re(), p[2].re()]).collect();
         let (terms, _) = con.terms(&|n| xre[n], true).map_err(|p| AdjointError::Element(ElementError::Penetration(p.node)))?;
         let weights: std::collections::HashMap<usize, D> = crate::contact::nodal_areas_at(&model.mesh, &con.faces, x0).into_iter().collect();
-        let given: std::collections::HashMap<usize, f64> = con.slaves.iter().map(|s| (s.node, s.weight)).collect();
         for t in &terms {
-            let ratio = match (weights.get(&t.nodes[0]), given.get(&t.nodes[0])) {
-                (Some(w), Some(&w0)) if w0 > 0.0 => *w / w0,
+            let ratio = match weights.get(&t.nodes[0]) {
+                Some(w) if t.weight > 0.0 => *w / t.weight,
                 _ => D::one(),
             };
             let nv = 3 * t.nodes.len();

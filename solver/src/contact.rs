@@ -145,6 +145,54 @@ pub struct Contact {
     /// so that shape sensitivities differentiate the weights too (empty: weights given, not
     /// shape-dependent).
     pub faces: Vec<Face>,
+    /// A rigid axle (a cylinder about the z axis) that its slave nodes stay outside of.
+    #[serde(default)]
+    pub axle: Option<Axle>,
+}
+
+/// A rigid, frictionless cylinder about the z axis (e.g. an axle through a cavity): each slave
+/// node (node, weight) has the barrier term κ w b(ρ − radius), ρ its distance from the axis. The
+/// weights are consistent nodal areas of [`Contact::faces`] like the self-contact slaves'.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Axle {
+    pub radius: f64,
+    pub slaves: Vec<(usize, f64)>,
+}
+
+impl Axle {
+    /// The signed distance of a point from the axle's surface (negative: inside it).
+    pub fn gap(&self, p: [f64; 3]) -> f64 {
+        p[0].hypot(p[1]) - self.radius
+    }
+
+    /// The node's term at position p, if within the barrier's reach d̂: (gap, energy, force,
+    /// Hessian (row-major 3×3, empty unless asked)); Err(gap) if p is on or inside the axle.
+    fn term(&self, barrier: &Barrier, weight: f64, p: [f64; 3], want_hessian: bool) -> Result<Option<(f64, f64, Vec<f64>, Vec<f64>)>, f64> {
+        let rho = p[0].hypot(p[1]);
+        let gap = rho - self.radius;
+        if !(gap > 0.0) {
+            return Err(gap);
+        }
+        if gap >= barrier.dhat || weight == 0.0 {
+            return Ok(None);
+        }
+        let n = [p[0] / rho, p[1] / rho, 0.0];
+        let (b, b1, b2) = barrier.eval(gap);
+        let kw = barrier.kappa * weight;
+        let force = n.iter().map(|v| kw * b1 * v).collect();
+        let mut hess = Vec::new();
+        if want_hessian {
+            // ∇ρ = n, ∇²ρ = (P − n nᵀ)/ρ with P the projection on the xy plane
+            hess = vec![0.0; 9];
+            for i in 0..3 {
+                for j in 0..3 {
+                    let pij = if i == j && i < 2 { 1.0 } else { 0.0 };
+                    hess[3 * i + j] = kw * (b2 * n[i] * n[j] + b1 * (pij - n[i] * n[j]) / rho);
+                }
+            }
+        }
+        Ok(Some((gap, kw * b, force, hess)))
+    }
 }
 
 /// The type of the closest point of a triangle to a point.
@@ -232,6 +280,8 @@ pub struct SlaveTerm {
     /// the node's distance to its target surface
     pub gap: f64,
     pub energy: f64,
+    /// the slave's weight (its reference area) in the term
+    pub weight: f64,
     /// the nodes the term couples (the slave first, then the target triangle's mesh nodes)
     pub nodes: Vec<usize>,
     /// ∂E/∂x over `nodes` (3 per node)
@@ -262,6 +312,14 @@ impl Contact {
                         return Err(format!("contact triangle {k} refers to node {n} of {n_nodes}"));
                     }
                 }
+            }
+        }
+        if let Some(ax) = &self.axle {
+            if !(ax.radius > 0.0 && ax.radius.is_finite()) {
+                return Err(format!("contact axle radius must be > 0 (got {})", ax.radius));
+            }
+            if let Some(&(n, w)) = ax.slaves.iter().find(|(n, w)| *n >= n_nodes || !(*w >= 0.0 && w.is_finite())) {
+                return Err(format!("contact axle slave node {n} of {n_nodes} (weight {w})"));
             }
         }
         for s in &self.slaves {
@@ -352,7 +410,12 @@ impl Contact {
     /// The smallest blended distance of any slave node to its target surface (∞ without slaves
     /// within a triangle's reach).
     pub fn min_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
-        self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(f64::INFINITY, f64::min)
+        self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(self.axle_gap(x), f64::min)
+    }
+
+    /// The smallest distance of an axle slave from the axle (∞ without an axle).
+    pub fn axle_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
+        self.axle.as_ref().map_or(f64::INFINITY, |ax| ax.slaves.iter().map(|&(n, _)| ax.gap(x(n))).fold(f64::INFINITY, f64::min))
     }
 
     /// The smallest distance of any slave node to its target surface (∞ without candidates):
@@ -361,7 +424,7 @@ impl Contact {
     /// triangle (far from contact the sign of one triangle's plane is not the side of the surface:
     /// on a concave wall the node lies behind the planes of its own wall's other triangles).
     pub fn min_distance(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
-        self.slaves.iter().filter_map(|s| self.blended_gap(s, x).or_else(|| self.closest(s, x).map(|c| c.0))).fold(f64::INFINITY, f64::min)
+        self.slaves.iter().filter_map(|s| self.blended_gap(s, x).or_else(|| self.closest(s, x).map(|c| c.0))).fold(self.axle_gap(x), f64::min)
     }
 
     /// The largest fraction τ ∈ (0, 1] of the straight motion x → x + dx of every node that
@@ -434,6 +497,27 @@ impl Contact {
                 let (dist, _, kind) = point_triangle(p, c);
                 let size = norm(sub(c[1], c[0])).max(norm(sub(c[2], c[0])));
                 if kind == Closest::Face && dist <= 1e-6 * size.max(1e-12) + 1e-9 {
+                    tmax = tmax.min(keep * tc);
+                }
+            }
+        }
+        // the axle: the first root of |p_xy + τ dp_xy|² = radius² (a node outside moving in)
+        if let Some(ax) = &self.axle {
+            for &(n, _) in &ax.slaves {
+                let (p, d) = (x(n), dx(n));
+                let a = d[0] * d[0] + d[1] * d[1];
+                let b = 2.0 * (p[0] * d[0] + p[1] * d[1]);
+                let c = p[0] * p[0] + p[1] * p[1] - ax.radius * ax.radius;
+                if !(a > 0.0) || c <= 0.0 || b >= 0.0 {
+                    continue;
+                }
+                let disc = b * b - 4.0 * a * c;
+                if disc < 0.0 {
+                    continue;
+                }
+                // the smaller root, in the cancellation-free form 2c / (−b + √disc)
+                let tc = 2.0 * c / (-b + disc.sqrt());
+                if tc > 0.0 && tc <= tmax {
                     tmax = tmax.min(keep * tc);
                 }
             }
@@ -621,7 +705,19 @@ impl Contact {
                     }
                 }
             }
-            out.push(SlaveTerm { gap, energy: kw * b * g, nodes, force, hessian: hess });
+            out.push(SlaveTerm { gap, energy: kw * b * g, weight: s.weight, nodes, force, hessian: hess });
+        }
+        if let Some(ax) = &self.axle {
+            for &(node, weight) in &ax.slaves {
+                match ax.term(&self.barrier, weight, x(node), want_hessian) {
+                    Err(_) => return Err(Penetration { node }),
+                    Ok(None) => min_gap = min_gap.min(ax.gap(x(node))),
+                    Ok(Some((gap, energy, force, hessian))) => {
+                        min_gap = min_gap.min(gap);
+                        out.push(SlaveTerm { gap, energy, weight, nodes: vec![node], force, hessian });
+                    }
+                }
+            }
         }
         Ok((out, min_gap))
     }
@@ -757,7 +853,7 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         .filter(|s| !s.targets.is_empty())
         .collect();
     let blend = Contact::default_blend(&triangles, x0);
-    Contact { barrier, blend, triangles, slaves, faces: faces.to_vec() }
+    Contact { barrier, blend, triangles, slaves, faces: faces.to_vec(), axle: None }
 }
 
 /// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
@@ -875,6 +971,7 @@ mod tests {
             ],
             slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
             faces: Vec::new(),
+            axle: None,
         };
         c.validate(5).unwrap();
         // inside a triangle; over the crease between the two (both weights); inside, within the
@@ -923,6 +1020,7 @@ mod tests {
             triangles: vec![[Vertex::Fixed([0.0, 0.0, 0.0]), Vertex::Fixed([1.0, 0.0, 0.0]), Vertex::Fixed([0.0, 1.0, 0.0])]],
             slaves: vec![Slave { node: 0, weight: 1.0, targets: vec![0] }],
             faces: Vec::new(),
+            axle: None,
         };
         let x = |_: usize| [0.2, 0.2, 0.5];
         // 10 units down: crosses the face at τ = 0.05, cut to keep × 0.05
@@ -941,4 +1039,61 @@ mod tests {
         assert!(c.terms(&|_| [0.2, 0.2, -0.001], false).is_err());
     }
 
+
+    /// The axle's term: the force is the energy's gradient and the Hessian the force's Jacobian
+    /// (central differences), nodes beyond d̂ have none, a node inside is a penetration, and a
+    /// step towards the axis is cut before the node reaches the axle.
+    #[test]
+    fn axle_term_derivatives_and_step_limit() {
+        let barrier = Barrier { dhat: 0.1, kappa: 2.0 };
+        let c = Contact {
+            barrier,
+            blend: 0.01,
+            triangles: Vec::new(),
+            slaves: Vec::new(),
+            faces: Vec::new(),
+            axle: Some(Axle { radius: 2.0, slaves: vec![(0, 0.7), (1, 0.3)] }),
+        };
+        c.validate(2).unwrap();
+        let pos: [[f64; 3]; 2] = [[1.5, 1.33, 4.0], [5.0, 0.0, 1.0]];
+        let gap0 = pos[0][0].hypot(pos[0][1]) - 2.0;
+        assert!(gap0 > 0.0 && gap0 < 0.1);
+        let (terms, g) = c.terms(&|n| pos[n], true).unwrap();
+        assert_eq!(terms.len(), 1, "only the node within d̂ has a term");
+        assert!((g - gap0).abs() < 1e-14);
+        let t = &terms[0];
+        assert_eq!((t.nodes.clone(), t.weight), (vec![0], 0.7));
+        let energy = |p: [f64; 3]| c.terms(&|n| if n == 0 { p } else { pos[1] }, false).unwrap().0.first().map_or(0.0, |t| t.energy);
+        let force = |p: [f64; 3]| c.terms(&|n| if n == 0 { p } else { pos[1] }, false).unwrap().0[0].force.clone();
+        let h = 1e-7;
+        for i in 0..3 {
+            let (mut a, mut b) = (pos[0], pos[0]);
+            a[i] += h;
+            b[i] -= h;
+            let fd = (energy(a) - energy(b)) / (2.0 * h);
+            assert!((fd - t.force[i]).abs() <= 1e-6 * t.force[0].abs().max(1e-12), "force {i}: {fd} vs {}", t.force[i]);
+            let (fa, fb) = (force(a), force(b));
+            for j in 0..3 {
+                let fdj = (fa[j] - fb[j]) / (2.0 * h);
+                assert!((fdj - t.hessian[3 * j + i]).abs() <= 1e-5 * t.hessian[0].abs(), "hessian {j}{i}: {fdj} vs {}", t.hessian[3 * j + i]);
+            }
+        }
+        // pushes outwards
+        assert!(t.force[0] < 0.0 && t.force[1] < 0.0 && t.force[2] == 0.0, "{:?}", t.force);
+        // a node inside the axle is a penetration
+        let inside = [[1.0, 1.0, 0.0], pos[1]];
+        assert_eq!(c.terms(&|n| inside[n], false).unwrap_err(), Penetration { node: 0 });
+        // a straight step of node 1 through the axis is cut at `keep` of the way to the surface
+        let dx = [[0.0; 3], [-10.0, 0.0, 0.0]];
+        let tmax = c.max_step(&|n| pos[n], &|n| dx[n], 0.8);
+        assert!((tmax - 0.8 * 0.3).abs() < 1e-12, "{tmax}");
+        // moving outwards or along the axle is not limited
+        let out = [[1.0, 1.0, 0.0], [0.0, 0.0, 5.0]];
+        assert_eq!(c.max_step(&|n| pos[n], &|n| out[n], 0.8), 1.0);
+        assert!((c.min_distance(&|n| pos[n]) - gap0).abs() < 1e-14);
+        // a bad radius is refused
+        let mut bad = c.clone();
+        bad.axle.as_mut().unwrap().radius = -1.0;
+        assert!(bad.validate(2).is_err());
+    }
 }

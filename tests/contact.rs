@@ -1,6 +1,7 @@
 //! The cavity's self-contact in the actuator scenes (issue 19): the contact set across the
-//! cyclic cut, a vacuum path whose walls stay apart is unchanged by it, and adjoint gradients at a
-//! contact state (past the wall's snap) equal central differences.
+//! cyclic cut, a vacuum path whose walls stay apart is unchanged by it, adjoint gradients at a
+//! contact state (past the wall's snap) equal central differences; the pure-twist axle and the
+//! end plates.
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
 use twistopt::scene::*;
@@ -169,4 +170,31 @@ fn the_pure_twist_axle_holds_the_wall_off_the_axis() {
             assert!(c.rel_error <= 1e-5, "{f}/{prm}: adjoint {} fd {:?} (max {:e})", c.adjoint, c.fd, max_rel_error(&rep));
         }
     }
+}
+
+/// The end plates: with contact, every scene keeps the cavity wall above the bottom plate
+/// (z = 0) and below the top cap (a plane through one of its nodes); the rings held by the
+/// plates are not their slaves, and at rest every slave is beyond the barrier's reach.
+#[test]
+fn end_plates_bound_the_cavity_wall() {
+    let g = example();
+    let sm = SceneModel::build(&g, &opts(true), SceneKind::Free).unwrap();
+    let c = sm.model.contact().unwrap();
+    assert_eq!(c.planes.len(), 2);
+    let x = |n: usize| sm.model.mesh.nodes[n];
+    for (pl, ring) in c.planes.iter().zip(["bottom", "top"]) {
+        let ring = &sm.model.mesh.node_sets[ring];
+        assert!(!pl.slaves.is_empty());
+        assert!(pl.slaves.iter().all(|(n, w)| !ring.contains(n) && *w > 0.0 && sm.cavity_nodes.contains(n)));
+        let gaps: Vec<f64> = pl.slaves.iter().map(|&(n, _)| (0..3).map(|k| pl.normal[k] * (x(n)[k] - match pl.point {
+            Vertex::Fixed(p) => p[k],
+            Vertex::Node(r) => x(r)[k],
+            _ => unreachable!(),
+        })).sum()).collect();
+        assert!(gaps.iter().all(|&d| d > ContactOptions::default().dhat_mm), "{:?}", gaps.iter().cloned().fold(f64::INFINITY, f64::min));
+    }
+    assert!(matches!(c.planes[1].point, Vertex::Node(n) if sm.top_nodes.contains(&n)));
+    // at rest the wall is nowhere near a plate: no contact force
+    let a = sm.model.assemble(&vec![0.0; sm.model.n_reduced()], &sm.loads(0.0, 0.0), false).unwrap();
+    assert!(a.contact_gap > ContactOptions::default().dhat_mm);
 }

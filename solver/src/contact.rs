@@ -148,6 +148,35 @@ pub struct Contact {
     /// A rigid axle (a cylinder about the z axis) that its slave nodes stay outside of.
     #[serde(default)]
     pub axle: Option<Axle>,
+    /// Rigid planes (e.g. a tube's end plates) that their slave nodes stay in front of.
+    #[serde(default)]
+    pub planes: Vec<Plane>,
+}
+
+/// A rigid, frictionless plane: each slave node (node, weight) stays on the side
+/// n·(x − x_ref) > 0, with the barrier term κ w b(n·(x − x_ref)). The plane passes through
+/// `point`, a fixed point or a mesh node that it follows in translation (e.g. a node of a rigid
+/// cap that only translates along and turns about its normal); `normal` is a unit vector.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Plane {
+    pub normal: [f64; 3],
+    pub point: Vertex,
+    pub slaves: Vec<(usize, f64)>,
+}
+
+impl Plane {
+    fn reference(&self, x: &impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
+        match self.point {
+            Vertex::Fixed(p) => p,
+            Vertex::Node(n) => x(n),
+            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x(node)),
+        }
+    }
+
+    /// The signed distance of a point from the plane, the reference point at `r`.
+    fn gap(&self, p: [f64; 3], r: [f64; 3]) -> f64 {
+        (0..3).map(|c| self.normal[c] * (p[c] - r[c])).sum()
+    }
 }
 
 /// A rigid, frictionless cylinder about the z axis (e.g. an axle through a cavity): each slave
@@ -322,6 +351,20 @@ impl Contact {
                 return Err(format!("contact axle slave node {n} of {n_nodes} (weight {w})"));
             }
         }
+        for (k, pl) in self.planes.iter().enumerate() {
+            let len = (pl.normal.iter().map(|v| v * v).sum::<f64>()).sqrt();
+            if !((len - 1.0).abs() < 1e-9) {
+                return Err(format!("contact plane {k}: the normal must be a unit vector (|n| = {len})"));
+            }
+            match pl.point {
+                Vertex::Fixed(_) => {}
+                Vertex::Node(n) if n < n_nodes => {}
+                other => return Err(format!("contact plane {k}: its point must be fixed or a mesh node (got {other:?})")),
+            }
+            if let Some(&(n, w)) = pl.slaves.iter().find(|(n, w)| *n >= n_nodes || !(*w >= 0.0 && w.is_finite()) || Vertex::Node(*n) == pl.point) {
+                return Err(format!("contact plane {k}: slave node {n} of {n_nodes} (weight {w}; not the plane's own node)"));
+            }
+        }
         for s in &self.slaves {
             if s.node >= n_nodes {
                 return Err(format!("contact slave node {} of {n_nodes}", s.node));
@@ -356,6 +399,7 @@ impl Contact {
                 g.dedup();
                 g
             })
+            .chain(self.planes.iter().filter_map(|pl| pl.point.node().map(|r| (pl, r))).flat_map(|(pl, r)| pl.slaves.iter().map(move |&(n, _)| if n < r { vec![n, r] } else { vec![r, n] })))
             .collect()
     }
 
@@ -413,9 +457,13 @@ impl Contact {
         self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(self.axle_gap(x), f64::min)
     }
 
-    /// The smallest distance of an axle slave from the axle (∞ without an axle).
+    /// The smallest distance of an axle or plane slave from its obstacle (∞ without any).
     pub fn axle_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
-        self.axle.as_ref().map_or(f64::INFINITY, |ax| ax.slaves.iter().map(|&(n, _)| ax.gap(x(n))).fold(f64::INFINITY, f64::min))
+        let axle = self.axle.as_ref().map_or(f64::INFINITY, |ax| ax.slaves.iter().map(|&(n, _)| ax.gap(x(n))).fold(f64::INFINITY, f64::min));
+        self.planes.iter().fold(axle, |m, pl| {
+            let r = pl.reference(x);
+            pl.slaves.iter().map(|&(n, _)| pl.gap(x(n), r)).fold(m, f64::min)
+        })
     }
 
     /// The smallest distance of any slave node to its target surface (∞ without candidates):
@@ -519,6 +567,25 @@ impl Contact {
                 let tc = 2.0 * c / (-b + disc.sqrt());
                 if tc > 0.0 && tc <= tmax {
                     tmax = tmax.min(keep * tc);
+                }
+            }
+        }
+        // the planes: the gap is linear in the step
+        for pl in &self.planes {
+            let r = pl.reference(x);
+            let dr = match pl.point {
+                Vertex::Node(n) => dx(n),
+                _ => [0.0; 3],
+            };
+            for &(n, _) in &pl.slaves {
+                let g0 = pl.gap(x(n), r);
+                let d = dx(n);
+                let rate: f64 = (0..3).map(|c| pl.normal[c] * (d[c] - dr[c])).sum();
+                if g0 > 0.0 && rate < 0.0 {
+                    let tc = -g0 / rate;
+                    if tc <= tmax {
+                        tmax = tmax.min(keep * tc);
+                    }
                 }
             }
         }
@@ -719,6 +786,37 @@ impl Contact {
                 }
             }
         }
+        for pl in &self.planes {
+            let r = pl.reference(x);
+            let nref = match pl.point {
+                Vertex::Node(n) => Some(n),
+                _ => None,
+            };
+            let nn = pl.normal;
+            for &(node, weight) in &pl.slaves {
+                let gap = pl.gap(x(node), r);
+                min_gap = min_gap.min(gap);
+                if !(gap > 0.0) {
+                    return Err(Penetration { node });
+                }
+                if gap >= dh || weight == 0.0 {
+                    continue;
+                }
+                // gap = n·(x_s − x_ref): ∇ = (n, −n), ∇² = 0
+                let (b, b1, b2) = self.barrier.eval(gap);
+                let kw = self.barrier.kappa * weight;
+                let mut g = nn.to_vec();
+                let mut nodes = vec![node];
+                if let Some(rn) = nref {
+                    nodes.push(rn);
+                    g.extend(nn.iter().map(|v| -v));
+                }
+                let nv = g.len();
+                let force = g.iter().map(|v| kw * b1 * v).collect();
+                let hessian = if want_hessian { (0..nv * nv).map(|ij| kw * b2 * g[ij / nv] * g[ij % nv]).collect() } else { Vec::new() };
+                out.push(SlaveTerm { gap, energy: kw * b, weight, nodes, force, hessian });
+            }
+        }
         Ok((out, min_gap))
     }
 }
@@ -853,7 +951,7 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         .filter(|s| !s.targets.is_empty())
         .collect();
     let blend = Contact::default_blend(&triangles, x0);
-    Contact { barrier, blend, triangles, slaves, faces: faces.to_vec(), axle: None }
+    Contact { barrier, blend, triangles, slaves, faces: faces.to_vec(), axle: None, planes: Vec::new() }
 }
 
 /// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
@@ -972,6 +1070,7 @@ mod tests {
             slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
             faces: Vec::new(),
             axle: None,
+            planes: Vec::new(),
         };
         c.validate(5).unwrap();
         // inside a triangle; over the crease between the two (both weights); inside, within the
@@ -1021,6 +1120,7 @@ mod tests {
             slaves: vec![Slave { node: 0, weight: 1.0, targets: vec![0] }],
             faces: Vec::new(),
             axle: None,
+            planes: Vec::new(),
         };
         let x = |_: usize| [0.2, 0.2, 0.5];
         // 10 units down: crosses the face at τ = 0.05, cut to keep × 0.05
@@ -1053,6 +1153,7 @@ mod tests {
             slaves: Vec::new(),
             faces: Vec::new(),
             axle: Some(Axle { radius: 2.0, slaves: vec![(0, 0.7), (1, 0.3)] }),
+            planes: Vec::new(),
         };
         c.validate(2).unwrap();
         let pos: [[f64; 3]; 2] = [[1.5, 1.33, 4.0], [5.0, 0.0, 1.0]];
@@ -1095,5 +1196,52 @@ mod tests {
         let mut bad = c.clone();
         bad.axle.as_mut().unwrap().radius = -1.0;
         assert!(bad.validate(2).is_err());
+    }
+
+    /// A plane through a moving node (a cap's end plate): the force is the energy's gradient in
+    /// both the slave and the plane's node, the Hessian the force's Jacobian, a step that would
+    /// cross it is cut, and a node behind it is a penetration.
+    #[test]
+    fn plane_term_derivatives_and_step_limit() {
+        let barrier = Barrier { dhat: 0.1, kappa: 2.0 };
+        let s3 = 1.0 / 3f64.sqrt();
+        let plane = Plane { normal: [s3, -s3, s3], point: Vertex::Node(2), slaves: vec![(0, 0.5), (1, 0.25)] };
+        let c = Contact { barrier, blend: 0.01, triangles: Vec::new(), slaves: Vec::new(), faces: Vec::new(), axle: None, planes: vec![plane] };
+        c.validate(3).unwrap();
+        assert!(c.coupling_groups().contains(&vec![0, 2]));
+        let pos: [[f64; 3]; 3] = [[1.0 + 0.03 * s3, 2.0 - 0.03 * s3, 3.0 + 0.03 * s3], [1.0 + s3, 2.0 - s3, 3.0 + s3], [1.0, 2.0, 3.0]];
+        let (terms, g) = c.terms(&|n| pos[n], true).unwrap();
+        assert_eq!(terms.len(), 1);
+        assert!((g - 0.03).abs() < 1e-12, "{g}");
+        let t = &terms[0];
+        assert_eq!(t.nodes, vec![0, 2]);
+        let at = |k: usize, i: usize, h: f64| {
+            let mut p = pos;
+            p[k][i] += h;
+            p
+        };
+        let energy = |p: [[f64; 3]; 3]| c.terms(&|n| p[n], false).unwrap().0[0].energy;
+        let force = |p: [[f64; 3]; 3]| c.terms(&|n| p[n], false).unwrap().0[0].force.clone();
+        let h = 1e-7;
+        for (slot, k) in [(0, 0usize), (1, 2usize)] {
+            for i in 0..3 {
+                let fd = (energy(at(k, i, h)) - energy(at(k, i, -h))) / (2.0 * h);
+                assert!((fd - t.force[3 * slot + i]).abs() <= 1e-6 * t.force[0].abs(), "force {k}/{i}: {fd} vs {}", t.force[3 * slot + i]);
+                let (fa, fb) = (force(at(k, i, h)), force(at(k, i, -h)));
+                for j in 0..6 {
+                    let fdj = (fa[j] - fb[j]) / (2.0 * h);
+                    assert!((fdj - t.hessian[j * 6 + 3 * slot + i]).abs() <= 1e-5 * t.hessian[0].abs(), "hessian {j},{k}/{i}: {fdj} vs {}", t.hessian[j * 6 + 3 * slot + i]);
+                }
+            }
+        }
+        // the plane's node moving onto slave 1 (gap 1) is cut at keep of the way
+        let dx = [[0.0; 3], [0.0; 3], [2.0 * s3, -2.0 * s3, 2.0 * s3]];
+        let tmax = c.max_step(&|n| pos[n], &|n| dx[n], 0.8);
+        assert!((tmax - 0.8 * 0.015).abs() < 1e-12, "{tmax}");
+        let behind = [pos[2], pos[1], pos[0]];
+        assert!(c.terms(&|n| behind[n], false).is_err());
+        let mut bad = c.clone();
+        bad.planes[0].normal = [1.0, 1.0, 0.0];
+        assert!(bad.validate(3).is_err());
     }
 }

@@ -57,7 +57,7 @@ fn block(ratio: f64, barrier: Barrier, g0: f64) -> Block {
     let mat = NeoHookean::with_ratio(0.34, ratio).unwrap();
     let mut model = Model::new(mesh, Formulation::standard(KIND), mat.into(), &cons, None).unwrap();
     let blend = Contact::default_blend(&triangles, &model.mesh.nodes);
-    model.set_contact(Contact { barrier, blend, triangles, slaves, faces: model.mesh.face_sets["zmin"].clone(), axle: None }).unwrap();
+    model.set_contact(Contact { barrier, blend, triangles, slaves, faces: model.mesh.face_sets["zmin"].clone(), axle: None, planes: Vec::new() }).unwrap();
     Block { model, top, bottom, weights }
 }
 
@@ -225,7 +225,7 @@ fn block_on_deformable_block_balances_and_has_a_consistent_tangent() {
     let mat = NeoHookean::with_ratio(0.34, 1000.0).unwrap();
     let mut model = Model::new(mesh, Formulation::standard(KIND), mat.into(), &cons, None).unwrap();
     let blend = Contact::default_blend(&triangles, &model.mesh.nodes);
-    model.set_contact(Contact { barrier, blend, triangles, slaves, faces: model.mesh.face_sets["b_zmin"].clone(), axle: None }).unwrap();
+    model.set_contact(Contact { barrier, blend, triangles, slaves, faces: model.mesh.face_sets["b_zmin"].clone(), axle: None, planes: Vec::new() }).unwrap();
     // the upper block 1.2 mm down (gap ≈ 0.3 d̂), every free unknown perturbed by up to 1e-5
     let loads = loads_with(&model, &top, 2, -1.2e-3);
     let mut q = vec![0.0; model.n_reduced()];
@@ -326,7 +326,7 @@ fn capped_block(dx0: &dyn Fn([f64; 3]) -> [f64; 3], h: f64) -> (Model, Loads) {
     let mat = NeoHookean::with_ratio(0.34, 100.0).unwrap();
     let mut model = Model::new(mesh, Formulation::standard(KIND), mat.into(), &cons, None).unwrap();
     let blend = Contact::default_blend(&triangles, &model.mesh.nodes);
-    model.set_contact(Contact { barrier: Barrier { dhat: 1e-3, kappa: 20.0 }, blend, triangles, slaves, faces, axle: None }).unwrap();
+    model.set_contact(Contact { barrier: Barrier { dhat: 1e-3, kappa: 20.0 }, blend, triangles, slaves, faces, axle: None, planes: Vec::new() }).unwrap();
     let mut loads = Loads::zero(&model);
     let twistopt_solver::dofmap::BodyDof::Presc(slot) = model.dofs.body_dofs[0][2] else { panic!("cap z is prescribed") };
     loads.presc[slot] = -0.1;

@@ -228,3 +228,30 @@ fn pure_twist_pair_gives_its_own_energy_density() {
     assert!((f(&tr["points"][0]["tau_Nm"]) - tau).abs() < 1e-6 * tau.abs());
     assert!((f(&tr["free_theta_deg"]) - theta).abs() < 1e-9);
 }
+
+/// Every problem file shipped in problems/ loads and validates (a user's first command must not
+/// fail on the file itself); the pure-twist vacuum problem's axle reaches the scene options.
+#[test]
+fn shipped_problem_files_validate() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("problems");
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().and_then(|x| x.to_str()) != Some("toml") {
+            continue;
+        }
+        n += 1;
+        if std::fs::read_to_string(&p).unwrap().lines().any(|l| l.trim() == "[sweep]") {
+            // a sweep's problem: `sweep --count` parses and validates it without running
+            let o = Command::new(env!("CARGO_BIN_EXE_twistopt")).arg("sweep").arg(&p).arg("--count").output().unwrap();
+            assert!(o.status.success(), "{}: {}", p.display(), String::from_utf8_lossy(&o.stderr));
+            continue;
+        }
+        let problem = twistopt::problem::Problem::load(&p, &[]).unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+        let v = problem.validate().unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+        if p.file_name().unwrap() == "vacuum-pure-twist.toml" {
+            assert_eq!(problem.scene_options(&v).contact.unwrap().axle_radius_mm, Some(2.0));
+        }
+    }
+    assert!(n >= 10, "{n} problem files");
+}

@@ -496,6 +496,7 @@ impl SceneModel {
             // shortest triangle edge, moves with the shape, which the adjoint does not follow:
             // measured 1e-4–1e-1 off central differences in the blocked scene)
             con.blend = c.blend_mm;
+            let areas = twistopt_solver::contact::nodal_areas(&model.mesh, &cavity);
             if let (Some(a), SceneKind::PureTwist | SceneKind::PureTwistBlocked) = (c.axle_radius_mm, kind) {
                 let inner = cavity_nodes.iter().map(|&n| model.mesh.nodes[n][0].hypot(model.mesh.nodes[n][1])).fold(f64::INFINITY, f64::min);
                 if !(a > 0.0 && a < inner) {
@@ -503,15 +504,13 @@ impl SceneModel {
                         "scenes.contact.axle_radius_mm = {a} does not fit inside the cavity: its wall comes within {inner:.3} mm of the axis"
                     ))));
                 }
-                let slaves = twistopt_solver::contact::nodal_areas(&model.mesh, &cavity);
-                con.axle = Some(twistopt_solver::contact::Axle { radius: a, slaves });
+                con.axle = Some(twistopt_solver::contact::Axle { radius: a, slaves: areas.clone() });
             }
             // the end plates: the collapsing wall stays above the bottom plate (z = 0, fixed) and
             // below the top cap's (it follows the cap's axial motion: exact on the sector, where the cap
             // turns about z only; the full model's cap may also tilt, which the plane ignores).
             // Measured without them: the letter's optimum's free scene passed the wall through
             // z = 0 from −55 kPa on (1.2 mm below it at −72 kPa), ours (l = 20, α = 360°) from −35 kPa.
-            let areas = twistopt_solver::contact::nodal_areas(&model.mesh, &cavity);
             let off = |ring: &str| -> Vec<(usize, f64)> {
                 let ring: std::collections::HashSet<usize> = model.mesh.node_sets[ring].iter().copied().collect();
                 areas.iter().copied().filter(|(n, _)| !ring.contains(n)).collect()

@@ -101,6 +101,15 @@ pub enum Vertex {
 }
 
 impl Vertex {
+    /// The vertex's position with the mesh nodes at `x`.
+    pub fn position(&self, x: &impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
+        match *self {
+            Vertex::Node(n) => x(n),
+            Vertex::Fixed(p) => p,
+            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x(node)),
+        }
+    }
+
     /// The mesh node the vertex follows, if any.
     pub fn node(&self) -> Option<usize> {
         match *self {
@@ -166,11 +175,7 @@ pub struct Plane {
 
 impl Plane {
     fn reference(&self, x: &impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
-        match self.point {
-            Vertex::Fixed(p) => p,
-            Vertex::Node(n) => x(n),
-            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x(node)),
-        }
+        self.point.position(x)
     }
 
     /// The signed distance of a point from the plane, the reference point at `r`.
@@ -194,16 +199,17 @@ impl Axle {
         p[0].hypot(p[1]) - self.radius
     }
 
-    /// The node's term at position p, if within the barrier's reach d̂: (gap, energy, force,
-    /// Hessian (row-major 3×3, empty unless asked)); Err(gap) if p is on or inside the axle.
-    fn term(&self, barrier: &Barrier, weight: f64, p: [f64; 3], want_hessian: bool) -> Result<Option<(f64, f64, Vec<f64>, Vec<f64>)>, f64> {
+    /// The node's gap and, if within the barrier's reach d̂, its term: (energy, force, Hessian
+    /// (row-major 3×3, empty unless asked)); Err if p is on or inside the axle.
+    #[allow(clippy::type_complexity)]
+    fn term(&self, barrier: &Barrier, weight: f64, p: [f64; 3], want_hessian: bool) -> Result<(f64, Option<(f64, Vec<f64>, Vec<f64>)>), ()> {
         let rho = p[0].hypot(p[1]);
         let gap = rho - self.radius;
         if !(gap > 0.0) {
-            return Err(gap);
+            return Err(());
         }
         if gap >= barrier.dhat || weight == 0.0 {
-            return Ok(None);
+            return Ok((gap, None));
         }
         let n = [p[0] / rho, p[1] / rho, 0.0];
         let (b, b1, b2) = barrier.eval(gap);
@@ -220,7 +226,7 @@ impl Axle {
                 }
             }
         }
-        Ok(Some((gap, kw * b, force, hess)))
+        Ok((gap, Some((kw * b, force, hess))))
     }
 }
 
@@ -405,11 +411,7 @@ impl Contact {
 
     fn coords(&self, t: usize, x: &impl Fn(usize) -> [f64; 3]) -> [[f64; 3]; 3] {
         let tri = &self.triangles[t];
-        [0, 1, 2].map(|k| match tri[k] {
-            Vertex::Node(n) => x(n),
-            Vertex::Fixed(p) => p,
-            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x(node)),
-        })
+        [0, 1, 2].map(|k| tri[k].position(x))
     }
 
     /// The slave's distance to its target surface: (unsigned distance, signed distance, closest
@@ -454,11 +456,11 @@ impl Contact {
     /// The smallest blended distance of any slave node to its target surface (∞ without slaves
     /// within a triangle's reach).
     pub fn min_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
-        self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(self.axle_gap(x), f64::min)
+        self.slaves.iter().filter_map(|s| self.blended_gap(s, x)).fold(self.obstacle_gap(x), f64::min)
     }
 
     /// The smallest distance of an axle or plane slave from its obstacle (∞ without any).
-    pub fn axle_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
+    pub fn obstacle_gap(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
         let axle = self.axle.as_ref().map_or(f64::INFINITY, |ax| ax.slaves.iter().map(|&(n, _)| ax.gap(x(n))).fold(f64::INFINITY, f64::min));
         self.planes.iter().fold(axle, |m, pl| {
             let r = pl.reference(x);
@@ -472,7 +474,7 @@ impl Contact {
     /// triangle (far from contact the sign of one triangle's plane is not the side of the surface:
     /// on a concave wall the node lies behind the planes of its own wall's other triangles).
     pub fn min_distance(&self, x: &impl Fn(usize) -> [f64; 3]) -> f64 {
-        self.slaves.iter().filter_map(|s| self.blended_gap(s, x).or_else(|| self.closest(s, x).map(|c| c.0))).fold(self.axle_gap(x), f64::min)
+        self.slaves.iter().filter_map(|s| self.blended_gap(s, x).or_else(|| self.closest(s, x).map(|c| c.0))).fold(self.obstacle_gap(x), f64::min)
     }
 
     /// The largest fraction τ ∈ (0, 1] of the straight motion x → x + dx of every node that
@@ -595,11 +597,7 @@ impl Contact {
     /// A blend width for a target mesh: a tenth of its shortest triangle edge (reference
     /// positions `x0`; fixed vertices as they are).
     pub fn default_blend(triangles: &[Triangle], x0: &[[f64; 3]]) -> f64 {
-        let pos = |v: &Vertex| match *v {
-            Vertex::Node(n) => x0[n],
-            Vertex::Fixed(p) => p,
-            Vertex::Rotated { node, angle } => apply(&rot_z(angle), x0[node]),
-        };
+        let pos = |v: &Vertex| v.position(&|n| x0[n]);
         let mut hmin = f64::INFINITY;
         for t in triangles {
             for i in 0..3 {
@@ -776,13 +774,10 @@ impl Contact {
         }
         if let Some(ax) = &self.axle {
             for &(node, weight) in &ax.slaves {
-                match ax.term(&self.barrier, weight, x(node), want_hessian) {
-                    Err(_) => return Err(Penetration { node }),
-                    Ok(None) => min_gap = min_gap.min(ax.gap(x(node))),
-                    Ok(Some((gap, energy, force, hessian))) => {
-                        min_gap = min_gap.min(gap);
-                        out.push(SlaveTerm { gap, energy, weight, nodes: vec![node], force, hessian });
-                    }
+                let (gap, term) = ax.term(&self.barrier, weight, x(node), want_hessian).map_err(|_| Penetration { node })?;
+                min_gap = min_gap.min(gap);
+                if let Some((energy, force, hessian)) = term {
+                    out.push(SlaveTerm { gap, energy, weight, nodes: vec![node], force, hessian });
                 }
             }
         }
@@ -904,11 +899,7 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         }
     }
     let x0 = &mesh.nodes;
-    let pos = |v: &Vertex| match *v {
-        Vertex::Node(n) => x0[n],
-        Vertex::Fixed(p) => p,
-        Vertex::Rotated { node, angle } => apply(&rot_z(angle), x0[node]),
-    };
+    let pos = |v: &Vertex| v.position(&|n| x0[n]);
     let tri_x: Vec<[[f64; 3]; 3]> = triangles.iter().map(|t| [pos(&t[0]), pos(&t[1]), pos(&t[2])]).collect();
     // grid of cell size `reach` over the triangles' vertices
     let cell = reach.max(1e-12);

@@ -1279,7 +1279,7 @@ pub struct SnapOptions {
 
 impl Default for SnapOptions {
     fn default() -> Self {
-        SnapOptions { max_snaps: 20, overshoot: 1e-3, kick: 1e-3, max_iter: 1000, rtol: 1e-10 }
+        SnapOptions { max_snaps: 200, overshoot: 1e-3, kick: 1e-3, max_iter: 1000, rtol: 1e-10 }
     }
 }
 
@@ -1308,7 +1308,7 @@ pub fn relax<M: PathModel>(m: &M, q0: &[f64], lam: f64, o: &SnapOptions) -> Resu
     let mut sigma = 0.0f64;
     let mut its = 0usize;
     let mut last_rn = f64::INFINITY;
-    while its < o.max_iter {
+    loop {
         let rn = norm(&ev.r);
         if !rn.is_finite() {
             return Err((NewtonFailure::Divergence, its));
@@ -1321,6 +1321,9 @@ pub fn relax<M: PathModel>(m: &M, q0: &[f64], lam: f64, o: &SnapOptions) -> Resu
                 ev.k = Some(k);
                 return Ok(Solved { q, lam, ev, factor: f, stable: true, iterations: its, residual_norms: Vec::new(), lagged: false });
             }
+        }
+        if its >= o.max_iter {
+            return Err((NewtonFailure::IterationLimit, its));
         }
         last_rn = rn;
         its += 1;
@@ -1379,7 +1382,6 @@ pub fn relax<M: PathModel>(m: &M, q0: &[f64], lam: f64, o: &SnapOptions) -> Resu
             }
         }
     }
-    Err((NewtonFailure::IterationLimit, its))
 }
 
 /// The tangent's eigenvector of smallest eigenvalue magnitude at (q, λ) (inverse iteration, 12
@@ -1421,7 +1423,11 @@ pub struct Snap {
 /// [`follow`] under load control that snaps through where the path would end at a fold of λ
 /// or a lost stability (or fails with indefinite tangents): from the last stable point, kicked
 /// along its critical mode, the state is relaxed ([`relax`]) at a load `overshoot` beyond it
-/// and the path goes on from there; at most `max_snaps` times. The states of a snap's path are
+/// and the path goes on from there; at most `max_snaps` times. Where the relaxation does not
+/// reach a stable state (measured: a collapsing cavity wall whose descent stalls against the
+/// contact barrier), the jump is followed quasi-statically instead, under control of the model's
+/// functional (the cavity volume) through the unstable states until λ is back at the snap's
+/// load, and relaxed there. The states of a snap's path are
 /// stable equilibria; the jump itself is not a quasi-static path (a pressure-controlled structure
 /// jumps dynamically). Stations crossed during a jump are not produced.
 pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions, s: &SnapOptions) -> (PathResult<M>, Vec<Snap>) {
@@ -1446,19 +1452,58 @@ pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64,
             }
         }
         let Some(last) = points.last().cloned().filter(|_| snappable && snaps.len() < s.max_snaps) else {
-            return (PathResult { points, end: res.end, stats, last: res.last, control: res.control }, snaps);
+            // (a path that would snap once more than allowed ends at the step limit, not at its fold)
+            let end = if snappable && snaps.len() >= s.max_snaps { PathEnd::Failed(FailureCause::StepLimit) } else { res.end };
+            return (PathResult { points, end, stats, last: res.last, control: res.control }, snaps);
         };
         let lam_t = if dir * (lam_end - last.lam) <= s.overshoot * span { lam_end } else { last.lam + dir * s.overshoot * span };
-        let mut qk = last.q.clone();
-        if let Some(phi) = critical_mode(m, &last.q, last.lam) {
-            stats.factorizations += 1;
-            let scale = last.q.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-12);
-            // the sign that lowers the potential at the new load
-            let g = m.eval(&last.q, lam_t, false, None).map(|e| dot(&phi, &e.r)).unwrap_or(0.0);
-            let a = if g > 0.0 { -s.kick * scale } else { s.kick * scale };
-            qk.iter_mut().zip(&phi).for_each(|(x, p)| *x += a * p);
-        }
-        match relax(m, &qk, lam_t, s) {
+        // a state kicked along its critical mode, the sign that lowers the potential at λ_t
+        let kicked = |q: &[f64], lam: f64, stats: &mut PathStats| -> Vec<f64> {
+            let mut qk = q.to_vec();
+            if let Some(phi) = critical_mode(m, q, lam) {
+                stats.factorizations += 1;
+                let scale = q.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-12);
+                let g = m.eval(q, lam_t, false, None).map(|e| dot(&phi, &e.r)).unwrap_or(0.0);
+                let a = if g > 0.0 { -s.kick * scale } else { s.kick * scale };
+                qk.iter_mut().zip(&phi).for_each(|(x, p)| *x += a * p);
+            }
+            qk
+        };
+        let qk = kicked(&last.q, last.lam, &mut stats);
+        let landed = match relax(m, &qk, lam_t, s) {
+            Ok(sol) => Ok(sol),
+            Err((f, its)) => {
+                stats.newton_iterations += its;
+                stats.failed_iterations += its;
+                stats.failed_attempts += 1;
+                if trace_enabled() {
+                    eprintln!("[snap] relaxation at λ {lam_t:.7} failed ({f:?}, {its} iterations): passing the snap under the control functional");
+                }
+                // the jump followed quasi-statically instead: the path under control of the
+                // functional (a volume-controlled cavity has no fold there) through the unstable
+                // states, from the last stable point to where λ comes back to λ_t; relaxed there
+                // (at once if that state is stable)
+                let vo = ContinuationOptions { start_control: Control::Functional, stop_at_fold: false, stop_at_instability: false, control_end: None, ..o.clone() };
+                let pass = follow(m, &last.q, last.lam, lam_t, &[], stops, &vo);
+                stats.add(&pass.stats);
+                match (&pass.end, pass.points.last()) {
+                    (PathEnd::Completed, Some(p)) => {
+                        let q = if p.stable { p.q.clone() } else { kicked(&p.q, p.lam, &mut stats) };
+                        relax(m, &q, p.lam, s).map_err(|(f2, its2)| {
+                            stats.failed_iterations += its2;
+                            stats.failed_attempts += 1;
+                            (f2, its2)
+                        })
+                    }
+                    (PathEnd::Stopped(i), _) => {
+                        let i = *i;
+                        return (PathResult { points, end: PathEnd::Stopped(i), stats, last: None, control: Control::Functional }, snaps);
+                    }
+                    _ => Err((f, 0)),
+                }
+            }
+        };
+        match landed {
             Ok(sol) => {
                 stats.newton_iterations += sol.iterations;
                 stats.factorizations += sol.iterations + 1;
@@ -1477,8 +1522,6 @@ pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64,
             }
             Err((f, its)) => {
                 stats.newton_iterations += its;
-                stats.failed_iterations += its;
-                stats.failed_attempts += 1;
                 return (PathResult { points, end: PathEnd::Failed(cause_of(f)), stats, last: None, control: Control::Load }, snaps);
             }
         }
@@ -1882,6 +1925,27 @@ mod tests {
         let end = res.points.last().unwrap();
         assert!((end.lam - 1.5).abs() < 1e-12 && (f_fold(end.q[0]) - 1.5).abs() < 1e-8 && end.q[0] > 2.0);
         assert_stable_equilibria(&m, &res.points);
+    }
+
+    #[test]
+    fn a_snap_whose_relaxation_fails_is_passed_under_the_control_functional() {
+        // no relaxation iterations allowed: every relaxation fails, so the jump past the fold
+        // is followed under control of u (the functional) to the far branch
+        let m = Toy::Fold;
+        let o = ContinuationOptions::default();
+        let s = SnapOptions { max_iter: 0, ..SnapOptions::default() };
+        let (res, snaps) = follow_snapping(&m, &[0.0, 0.0], 0.0, 1.5, &[], &[], &o, &s);
+        assert_eq!(snaps.len(), 1, "{snaps:?}");
+        let uf = 1.0 - (1.0f64 / 6.0).sqrt();
+        assert!((snaps[0].lam - f_fold(uf)).abs() < 2e-3, "snap at λ {} (fold {})", snaps[0].lam, f_fold(uf));
+        let landed = &res.points[snaps[0].point];
+        assert!(landed.q[0] > 1.0 + (1.0f64 / 6.0).sqrt(), "landed at u = {}", landed.q[0]);
+        assert!((f_fold(landed.q[0]) - landed.lam).abs() < 1e-8);
+        assert_eq!(res.end, PathEnd::Completed);
+        let end = res.points.last().unwrap();
+        assert!((end.lam - 1.5).abs() < 1e-12 && (f_fold(end.q[0]) - 1.5).abs() < 1e-8 && end.q[0] > 2.0);
+        assert_stable_equilibria(&m, &res.points);
+        assert!(res.stats.failed_attempts >= 1);
     }
 
     #[test]

@@ -491,7 +491,7 @@ impl SceneModel {
         let mut model = Model::new(mesh, opts.formulation, opts.material, &cons, Some(&cavity))?;
         if let (Some(c), None) = (&opts.contact, &opts.rom) {
             let copies: Vec<f64> = if opts.sector { vec![0.0, 2.0 * std::f64::consts::PI / 3.0, -2.0 * std::f64::consts::PI / 3.0] } else { vec![0.0] };
-            let mut con = twistopt_solver::contact::self_contact(&model.mesh, &cavity, &copies, 2.0 * T_WALL, c.reach_mm, c.barrier());
+            let mut con = twistopt_solver::contact::self_contact(&model.mesh, &cavity, &copies, T_WALL, c.reach_mm, c.barrier());
             // a blend width independent of the design (the solver's default, a tenth of the
             // shortest triangle edge, moves with the shape, which the adjoint does not follow:
             // measured 1e-4–1e-1 off central differences in the blocked scene)

@@ -450,7 +450,8 @@ impl Contact {
             sa += w * d;
             sb += w;
         }
-        (sb > FADE_START).then(|| sa / sb)
+        // (behind the plane where the surface fades out: beside it, see `terms`)
+        (sb > FADE_START).then(|| sa / sb).filter(|g| *g > 0.0 || sb >= 1.0)
     }
 
     /// The smallest blended distance of any slave node to its target surface (∞ without slaves
@@ -640,8 +641,22 @@ impl Contact {
                 continue;
             }
             let gap = sa / sb;
+            // behind the surface's plane where it fades out (½ < Σw < 1): the node came round
+            // the surface's edge (the steps' collision check stops any passage through a
+            // triangle's face), not through it, and has no term. (Refused, such a node was a
+            // trap: moving over the surface from beside it, where it had no term, it met an
+            // infinite wall at Σw = ½ that the energy did not show; measured on the example
+            // design's free collapse with two elements through the wall, whose relaxation
+            // stalled there at −64 kPa.)
+            if !(gap > 0.0) && sb < 1.0 {
+                continue;
+            }
             min_gap = min_gap.min(gap);
             if !(gap > 0.0) {
+                if crate::continuation::trace_enabled() {
+                    let near = act.iter().map(|(_, tc)| point_triangle(p, *tc).0).fold(f64::INFINITY, f64::min);
+                    eprintln!("[contact] penetration: node {} at {p:?} gap {gap:.3e} weights {sb:.3} over {} triangles, nearest {near:.3e}; {:?}", s.node, act.len(), act.iter().map(|(t, _)| self.triangles[*t]).collect::<Vec<_>>());
+                }
                 return Err(Penetration { node: s.node });
             }
             if gap >= dh || s.weight == 0.0 {
@@ -885,7 +900,8 @@ fn blend_terms(p: [f64; 3], t: [[f64; 3]; 3], eps: f64, dhat: f64) -> (f64, f64)
 /// against the surface's triangles ([`face_triangles`]) and their copies rotated about z by each
 /// of `copies` (a cyclic sector's neighbours; 0 = the modelled part itself). A slave's candidate
 /// triangles are those within `reach` of it in the reference configuration, without a vertex
-/// within `exclude` of it (its own neighbourhood on the surface, which it cannot touch). A uniform
+/// within `exclude` of it, nor within its own ring of triangles (its own neighbourhood on the
+/// surface, which it cannot touch). A uniform
 /// grid finds them. The blend width is [`Contact::default_blend`].
 pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, reach: f64, barrier: Barrier) -> Contact {
     let base: Vec<Triangle> = faces.iter().flat_map(|&f| face_triangles(mesh, f)).collect();
@@ -914,6 +930,18 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         }
     }
     let dist = |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    // each node's own ring: the farthest vertex of a triangle it belongs to (a coarse mesh's
+    // ring can be wider than `exclude`, and a triangle sharing the node is at distance 0)
+    let mut ring = vec![0.0f64; x0.len()];
+    for t in &base {
+        for a in t {
+            if let Vertex::Node(n) = a {
+                for b in t {
+                    ring[*n] = ring[*n].max(dist(x0[*n], pos(b)));
+                }
+            }
+        }
+    }
     let weights = nodal_areas(mesh, faces);
     let slaves = weights
         .into_iter()
@@ -933,9 +961,10 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
             }
             cand.sort_unstable();
             cand.dedup();
+            let excl = exclude.max(1.01 * ring[node]);
             cand.retain(|&t| {
                 let tx = &tri_x[t];
-                tx.iter().all(|v| dist(*v, p) > exclude) && point_triangle(p, *tx).0 <= reach
+                tx.iter().all(|v| dist(*v, p) > excl) && point_triangle(p, *tx).0 <= reach
             });
             Slave { node, weight, targets: cand }
         })
@@ -1128,6 +1157,17 @@ mod tests {
         // behind it it is a penetration
         assert!(c.terms(&|_| [0.2, 0.2, -0.5], false).is_ok());
         assert!(c.terms(&|_| [0.2, 0.2, -0.001], false).is_err());
+        // just behind the plane within the blend band of the free edge x = 0 (the weights sum
+        // to between ½ and 1: the surface fades out there): come round the edge, no term and no
+        // refusal, and not counted as a penetrating distance
+        let beside = |_: usize| [0.01, 0.5, -0.001];
+        let sb = blend_terms(beside(0), c.coords(0, &beside), c.blend, c.barrier.dhat).1;
+        assert!(sb > FADE_START && sb < 1.0, "{sb}");
+        let (terms, _) = c.terms(&beside, false).unwrap();
+        assert!(terms.is_empty());
+        assert!(c.min_gap(&beside).is_infinite() && c.min_distance(&beside) > 0.0);
+        // the same depth inside the edge's band but over the face (weights sum to 1): refused
+        assert!(c.terms(&|_| [0.03, 0.5, -0.001], false).is_err());
     }
 
 

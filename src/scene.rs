@@ -819,7 +819,7 @@ fn scene_path(
         PathEnd::Completed => None,
         PathEnd::Stopped(i) if stops[i].name == "ballooning" => Some((SceneStatus::Ballooning, format!("max deformed radius reached the ballooning limit {limit:.2} mm at p = {p_last:.4} kPa"))),
         PathEnd::Stopped(i) if stops[i].name == "cavity-closed" => {
-            Some((SceneStatus::SelfContact, format!("the cavity volume vanished at p = {p_last:.4} kPa: walls passed each other beyond the contact candidates (raise the contact reach_mm)")))
+            Some((SceneStatus::SelfContact, format!("the cavity volume vanished at p = {p_last:.4} kPa (or in the snap beyond it): walls passed each other beyond the contact candidates (raise the contact reach_mm)")))
         }
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
         PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),

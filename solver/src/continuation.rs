@@ -1509,6 +1509,19 @@ pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64,
                 stats.factorizations += sol.iterations + 1;
                 let jump = sol.q.iter().zip(&last.q).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
                 let out = m.outputs(&sol.q, sol.lam, &sol.ev);
+                // a jump across a stop's threshold ends the path there (the landed state is
+                // not kept: e.g. a cavity volume that went negative in the jump)
+                let crossed = stops.iter().position(|st| {
+                    let sg = if st.rising { 1.0 } else { -1.0 };
+                    let (a, b) = (last.outputs.get(st.output), out.get(st.output));
+                    matches!((a, b), (Some(a), Some(b)) if sg * (a - st.threshold) < 0.0 && !(sg * (b - st.threshold) < 0.0))
+                });
+                if let Some(i) = crossed {
+                    if trace_enabled() {
+                        eprintln!("[snap] at λ {:.7}: the jump crosses the stop '{}'", sol.lam, stops[i].name);
+                    }
+                    return (PathResult { points, end: PathEnd::Stopped(i), stats, last: None, control: Control::Load }, snaps);
+                }
                 points.push(PathPoint { lam: sol.lam, q: sol.q.clone(), control: sol.ev.control.as_ref().map(|c| c.0), outputs: out, min_det: sol.ev.min_det, stable: true, kind: PointKind::Snapped, newton_iterations: sol.iterations });
                 snaps.push(Snap { lam: sol.lam, point: points.len() - 1, iterations: sol.iterations, jump });
                 if trace_enabled() {
@@ -1925,6 +1938,20 @@ mod tests {
         let end = res.points.last().unwrap();
         assert!((end.lam - 1.5).abs() < 1e-12 && (f_fold(end.q[0]) - 1.5).abs() < 1e-8 && end.q[0] > 2.0);
         assert_stable_equilibria(&m, &res.points);
+    }
+
+    #[test]
+    fn a_snap_across_a_stop_ends_the_path_before_the_jump() {
+        // the fold's jump lands at u ≈ 1.82: a stop on u rising through 1.5 ends the path at the
+        // last stable state before it, and the landed state is not kept
+        let m = Toy::Fold;
+        let stops = [Stop { name: "u".into(), output: 0, threshold: 1.5, rising: true }];
+        let (res, snaps) = follow_snapping(&m, &[0.0, 0.0], 0.0, 1.5, &[], &stops, &ContinuationOptions::default(), &SnapOptions::default());
+        assert_eq!(res.end, PathEnd::Stopped(0));
+        assert!(snaps.is_empty(), "{snaps:?}");
+        assert!(res.points.iter().all(|p| p.q[0] < 1.5), "{:?}", res.points.last().map(|p| &p.q));
+        let uf = 1.0 - (1.0f64 / 6.0).sqrt();
+        assert!((res.points.last().unwrap().q[0] - uf).abs() < 1e-2);
     }
 
     #[test]

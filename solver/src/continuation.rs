@@ -130,6 +130,14 @@ pub struct Stop {
     pub rising: bool,
 }
 
+impl Stop {
+    /// Whether the output goes from before the threshold (`from`) to on or beyond it (`to`).
+    pub fn crossed(&self, from: f64, to: f64) -> bool {
+        let sg = if self.rising { 1.0 } else { -1.0 };
+        sg * (from - self.threshold) < 0.0 && sg * (to - self.threshold) >= 0.0
+    }
+}
+
 /// Path-following options.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ContinuationOptions {
@@ -1030,9 +1038,7 @@ impl<'a, M: PathModel> Follower<'a, M> {
         };
         // thresholds crossed before `far`
         for (i, s) in self.stops.iter().enumerate() {
-            let sg = if s.rising { 1.0 } else { -1.0 };
-            let (a, b) = (sg * (cur.out[s.output] - s.threshold), sg * (far.out[s.output] - s.threshold));
-            if a < 0.0 && b >= 0.0 {
+            if s.crossed(cur.out[s.output], far.out[s.output]) {
                 let n = self.locate_stop(cur, &far, ctl, s).unwrap_or(far);
                 return Err(Event::Stop(i, n));
             }
@@ -1511,11 +1517,7 @@ pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64,
                 let out = m.outputs(&sol.q, sol.lam, &sol.ev);
                 // a jump across a stop's threshold ends the path there (the landed state is
                 // not kept: e.g. a cavity volume that went negative in the jump)
-                let crossed = stops.iter().position(|st| {
-                    let sg = if st.rising { 1.0 } else { -1.0 };
-                    let (a, b) = (last.outputs.get(st.output), out.get(st.output));
-                    matches!((a, b), (Some(a), Some(b)) if sg * (a - st.threshold) < 0.0 && !(sg * (b - st.threshold) < 0.0))
-                });
+                let crossed = stops.iter().position(|st| matches!((last.outputs.get(st.output), out.get(st.output)), (Some(&a), Some(&b)) if st.crossed(a, b)));
                 if let Some(i) = crossed {
                     if trace_enabled() {
                         eprintln!("[snap] at λ {:.7}: the jump crosses the stop '{}'", sol.lam, stops[i].name);

@@ -450,8 +450,7 @@ impl Contact {
             sa += w * d;
             sb += w;
         }
-        // (behind the plane where the surface fades out: beside it, see `terms`)
-        (sb > FADE_START).then(|| sa / sb).filter(|g| *g > 0.0 || sb >= 1.0)
+        over_surface_gap(sa, sb)
     }
 
     /// The smallest blended distance of any slave node to its target surface (∞ without slaves
@@ -633,24 +632,7 @@ impl Contact {
             if act.is_empty() {
                 continue;
             }
-            // beyond a surface's free edge (or beside a crease whose other side is not a
-            // candidate) the weights sum to less than 1 and the contact fades out; at half or
-            // less the node is not over the surface and has no term (a node beside a triangle's
-            // edge may lie behind its plane without having passed through it)
-            if sb <= FADE_START {
-                continue;
-            }
-            let gap = sa / sb;
-            // behind the surface's plane where it fades out (½ < Σw < 1): the node came round
-            // the surface's edge (the steps' collision check stops any passage through a
-            // triangle's face), not through it, and has no term. (Refused, such a node was a
-            // trap: moving over the surface from beside it, where it had no term, it met an
-            // infinite wall at Σw = ½ that the energy did not show; measured on the example
-            // design's free collapse with two elements through the wall, whose relaxation
-            // stalled there at −64 kPa.)
-            if !(gap > 0.0) && sb < 1.0 {
-                continue;
-            }
+            let Some(gap) = over_surface_gap(sa, sb) else { continue };
             min_gap = min_gap.min(gap);
             if !(gap > 0.0) {
                 if crate::continuation::trace_enabled() {
@@ -845,6 +827,26 @@ fn smoothstep<D: Scalar>(x: D) -> D {
 
 /// The blend weights' sum below which a slave is not over its target surface (no contact term).
 const FADE_START: f64 = 0.5;
+
+/// A slave's blended gap Σw·d / Σw from the sums Σw·d (`sa`) and Σw (`sb`) of its target
+/// triangles, or None where the node is not over the surface:
+/// * beyond a surface's free edge (or beside a crease whose other side is not a candidate) the
+///   weights sum to less than 1 and the contact fades out; at half or less the node is not over
+///   the surface (a node beside a triangle's edge may lie behind its plane without having passed
+///   through it);
+/// * behind the surface's plane where it fades out (½ < Σw < 1) the node came round the
+///   surface's edge (the steps' collision check stops any passage through a triangle's face),
+///   not through it. (Refused, such a node was a trap: moving over the surface from beside it,
+///   where it had no term, it met an infinite wall at Σw = ½ that the energy did not show;
+///   measured on the example design's free collapse with two elements through the wall, whose
+///   relaxation stalled there at −64 kPa.)
+fn over_surface_gap(sa: f64, sb: f64) -> Option<f64> {
+    if sb <= FADE_START {
+        return None;
+    }
+    let gap = sa / sb;
+    (gap > 0.0 || sb >= 1.0).then_some(gap)
+}
 
 /// The contact fade g(B) of the blend weights' sum: 1 for B ≥ 1 (inside a surface, where the
 /// weights sum to at least 1), 0 for B ≤ ½, 3x² − 2x³ between (x = (B − ½)/½: beyond a surface's

@@ -987,6 +987,12 @@ pub fn nodal_areas_at<D: Scalar>(mesh: &Mesh, faces: &[Face], x: &[[D; 3]]) -> V
     for f in faces {
         let nodes = mesh.face_nodes(*f);
         let rule = FaceRule::new(nodes.len(), 3);
+        // 8-node (serendipity) faces: ∫ Nᵢ dA is negative at the corners (−A/12 on a flat
+        // square), which would turn a corner's barrier into an attraction; they get the
+        // row-sum-free HRZ lumping instead, wᵢ = A ∫ Nᵢ² dA / Σⱼ ∫ Nⱼ² dA (positive, summing to A).
+        let hrz = nodes.len() == 8;
+        let mut area = D::zero();
+        let mut local = vec![D::zero(); nodes.len()];
         for (q, w) in rule.weights.iter().enumerate() {
             let mut ts = [[D::zero(); 3]; 2];
             for (a, &n) in nodes.iter().enumerate() {
@@ -998,25 +1004,42 @@ pub fn nodal_areas_at<D: Scalar>(mesh: &Mesh, faces: &[Face], x: &[[D; 3]]) -> V
             }
             let nv = cross(ts[0], ts[1]);
             let da = dot(nv, nv).sqrt() * *w;
-            for (a, &n) in nodes.iter().enumerate() {
-                *acc.entry(n).or_insert(D::zero()) += da * rule.n[q][a];
+            area += da;
+            for a in 0..nodes.len() {
+                let na = rule.n[q][a];
+                local[a] += da * if hrz { na * na } else { na };
             }
+        }
+        if hrz {
+            let mut sum = D::zero();
+            for v in &local {
+                sum += *v;
+            }
+            for v in local.iter_mut() {
+                *v = *v * area / sum;
+            }
+        }
+        for (a, &n) in nodes.iter().enumerate() {
+            *acc.entry(n).or_insert(D::zero()) += local[a];
         }
     }
     acc.into_iter().collect()
 }
 
-/// The triangles of a face on its node grid: 2 for a 4-node face, 8 for a 9-node one (4 sub-quads
-/// around the centre), oriented with the face's outward normal. 8-node faces are not supported.
+/// The triangles of a face on its node grid, oriented with the face's outward normal: 2 for a
+/// 4-node face, 8 for a 9-node one (4 sub-quads around the centre), 6 for an 8-node one (a
+/// triangle at each corner and the quad of the edge midpoints split in two).
 pub fn face_triangles(mesh: &Mesh, f: Face) -> Vec<Triangle> {
     let n = mesh.face_nodes(f);
-    let quads: Vec<[usize; 4]> = match n.len() {
-        4 => vec![[0, 1, 2, 3]],
-        9 => vec![[0, 4, 8, 7], [4, 1, 5, 8], [8, 5, 2, 6], [7, 8, 6, 3]],
-        k => panic!("face_triangles: {k}-node faces are not supported"),
-    };
     let v = |i: usize| Vertex::Node(n[i]);
-    quads.iter().flat_map(|q| [[v(q[0]), v(q[1]), v(q[2])], [v(q[0]), v(q[2]), v(q[3])]]).collect()
+    let tris: Vec<[usize; 3]> = match n.len() {
+        4 => vec![[0, 1, 2], [0, 2, 3]],
+        8 => vec![[0, 4, 7], [4, 1, 5], [5, 2, 6], [7, 6, 3], [4, 5, 6], [4, 6, 7]],
+        9 => [[0, 4, 8, 7], [4, 1, 5, 8], [8, 5, 2, 6], [7, 8, 6, 3]].iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect(),
+        // faces come from hexahedra of 8, 20 or 27 nodes only
+        k => unreachable!("a hexahedron face has 4, 8 or 9 nodes, not {k}"),
+    };
+    tris.iter().map(|t| [v(t[0]), v(t[1]), v(t[2])]).collect()
 }
 
 /// A fixed plane obstacle through `point` with unit normal `normal` (pointing to the slaves),
@@ -1036,6 +1059,30 @@ pub fn plane_obstacle(point: [f64; 3], normal: [f64; 3], half: f64) -> Vec<Trian
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// 8-node (Hex20) faces: 6 triangles covering the face once, each along the face's outward
+    /// normal; the slave weights (HRZ-lumped) are positive and sum to the face area.
+    #[test]
+    fn hex20_faces_triangulate_and_weigh_positively() {
+        let m = crate::meshgen::boxed(crate::mesh::ElementKind::Hex20, [2, 1, 1], [2.0, 1.0, 3.0]);
+        let faces = m.face_sets["zmax"].clone();
+        let mut area = 0.0;
+        for f in &faces {
+            let tris = face_triangles(&m, *f);
+            assert_eq!(tris.len(), 6);
+            for t in &tris {
+                let p: Vec<[f64; 3]> = t.iter().map(|v| v.position(&|n| m.nodes[n])).collect();
+                let n = cross([p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]], [p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]]);
+                assert!(n[2] > 0.0, "triangle against the outward normal +z: {n:?}");
+                area += 0.5 * n[2];
+            }
+        }
+        assert!((area - 2.0).abs() < 1e-12, "{area}");
+        let w = nodal_areas(&m, &faces);
+        assert!(w.iter().all(|(_, a)| *a > 0.0), "{w:?}");
+        let total: f64 = w.iter().map(|(_, a)| a).sum();
+        assert!((total - 2.0).abs() < 1e-12, "{total}");
+    }
 
     #[test]
     fn barrier_derivatives_match_differences() {

@@ -4,7 +4,8 @@ use anyhow::{Context, Result};
 use serde_json::{json, Value};
 use std::path::Path;
 
-use super::{build_deck, ccx_version, run_deck, CcxRun, CcxState, DeckOptions};
+use super::contact::{contact_patches, map_deformed, PatchPair};
+use super::{build_deck, build_deck_with, ccx_version, run_deck, CcxRun, CcxState, DeckExtras, DeckOptions};
 use crate::evaluate::select_steps;
 use crate::problem::{Problem, Validated};
 use crate::scene::{run_pressure, SceneKind, SceneResult, StepRecord};
@@ -28,6 +29,39 @@ pub struct SceneCheck {
     pub twistopt: SceneResult,
     pub ccx: CcxRun,
     pub rows: Vec<Value>,
+    /// under vacuum with contact: the deck's contact pairs, and for a free rotation the runs at
+    /// prescribed rotations that located ccx's free twist ([`vacuum_contact_runs`])
+    pub contact: Option<Value>,
+}
+
+/// Prescribed rotations of the free-twist search: twistopt's θ(p) times these factors.
+pub const ROTATION_FACTORS: [f64; 2] = [1.0, 0.98];
+
+/// The contact pairs of a vacuum deck from twistopt's deepest converged state of `tw` (its fields
+/// kept). `base` is the deck without contact (its mesh is the full 360° ccx mesh).
+pub fn vacuum_patches(tw: &SceneResult, base: &super::Deck, sector: bool, delta_mm: f64) -> Result<Vec<PatchPair>> {
+    let fields = tw.fields.as_ref().ok_or_else(|| anyhow::anyhow!("twistopt kept no fields to take contact pairs from"))?;
+    let (k, _) = tw
+        .steps
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.p_kpa < 0.0)
+        .min_by(|a, b| a.1.p_kpa.total_cmp(&b.1.p_kpa))
+        .ok_or_else(|| anyhow::anyhow!("twistopt reached no negative pressure"))?;
+    let u = fields.displacements.get(k).ok_or_else(|| anyhow::anyhow!("no displacement field for step {k}"))?;
+    let x = map_deformed(&base.mesh, &fields.mesh, u, if sector { 3 } else { 1 })?;
+    let faces = base.mesh.face_sets.get("cavity").ok_or_else(|| anyhow::anyhow!("the deck's mesh has no cavity faces"))?;
+    let mut delta = delta_mm;
+    loop {
+        match contact_patches(&base.mesh, faces, &x, crate::geometry::T_WALL, delta) {
+            Ok(p) => return Ok(p),
+            Err(e) if delta > 0.05 => {
+                let _ = e;
+                delta *= 0.5;
+            }
+            Err(e) => return Err(e),
+        }
+    }
 }
 
 /// Compare one pressure: twistopt step vs ccx state. θ is compared where the cap rotation is
@@ -72,18 +106,25 @@ impl TwistoptElement {
 #[allow(clippy::too_many_arguments)]
 pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts: &DeckOptions, twistopt_element: TwistoptElement, ccx: &str, dir: &Path, threads: usize) -> Result<SceneCheck> {
     let mut opts = problem.scene_options(v);
-    opts.keep_fields = false;
+    let targets = v.load.targets();
+    let vacuum_contact = opts.contact.is_some() && targets.iter().any(|p| *p < 0.0);
+    opts.keep_fields = vacuum_contact;
     if twistopt_element == TwistoptElement::Matched {
         opts.formulation = deck_opts.element.matched_formulation().ok_or_else(|| anyhow::anyhow!("twistopt has no formulation matching {} (use C3D20R or C3D20)", deck_opts.element.name()))?;
     }
-    let targets = v.load.targets();
     let mut tw = match run_pressure(&v.geometry, &opts, scene, &targets) {
         Ok(r) => r,
         Err(e) => SceneResult::model_error(scene, e.to_string().replace('\n', " ")),
     };
     select_steps(&mut tw, &v.load);
-    let deck = build_deck(&v.geometry, &v.mesh, &v.material, scene, &targets, deck_opts)?;
-    let run = run_deck(ccx, &deck, &dir.join(scene.name()), scene.name(), threads)?;
+    let base = build_deck(&v.geometry, &v.mesh, &v.material, scene, &targets, deck_opts)?;
+    let (run, contact) = if vacuum_contact {
+        let (run, info) = vacuum_contact_runs(&tw, &base, v, scene, &targets, deck_opts, opts.sector, ccx, &dir.join(scene.name()), threads)?;
+        (run, Some(info))
+    } else {
+        (run_deck(ccx, &base, &dir.join(scene.name()), scene.name(), threads)?, None)
+    };
+    tw.fields = None;
     let mut rows = Vec::new();
     for c in &run.states {
         if c.p_kpa == 0.0 {
@@ -93,7 +134,81 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
             rows.push(row(scene, t, c));
         }
     }
-    Ok(SceneCheck { scene, twistopt: tw, ccx: run, rows })
+    Ok(SceneCheck { scene, twistopt: tw, ccx: run, rows, contact })
+}
+
+/// The ccx side of a vacuum scene with contact: the deck gets the facing patches of twistopt's
+/// deepest state as face-to-face penalty pairs ([`vacuum_patches`]). A held rotation is one run.
+/// A free rotation is found as the root of ccx's cap torque: ccx's `*RIGID BODY` with a free
+/// rotation node converges only linearly under vacuum (at −5.4 kPa on the coarse example it cut
+/// its increments to 1e-4 of the step), while with the rotation prescribed it converges as in the
+/// blocked scene. So ccx runs with the rotation prescribed at twistopt's θ(p) × each of
+/// [`ROTATION_FACTORS`], the zero of its torque is interpolated at each pressure, and a last run
+/// at those roots checks that the torque left there is small; the states reported are the last
+/// run's with θ the root.
+#[allow(clippy::too_many_arguments)]
+pub fn vacuum_contact_runs(tw: &SceneResult, base: &super::Deck, v: &Validated, scene: SceneKind, targets: &[f64], deck_opts: &DeckOptions, sector: bool, ccx: &str, dir: &Path, threads: usize) -> Result<(CcxRun, Value)> {
+    let pairs = vacuum_patches(tw, base, sector, deck_opts.contact_patch_mm)?;
+    let mut extras = DeckExtras { contact: pairs.clone(), contact_slope_mpa_per_mm: deck_opts.contact_slope_mpa_per_mm, rotation_deg: None };
+    let pairs_json = json!(pairs
+        .iter()
+        .map(|p| json!({"slave_faces": p.slave.len(), "master_faces": p.master.len(), "min_distance_mm": p.min_distance_mm, "close_nodes": p.close_nodes}))
+        .collect::<Vec<_>>());
+    if !scene.rotation_free() {
+        let deck = build_deck_with(&v.geometry, &v.mesh, &v.material, scene, targets, deck_opts, &extras)?;
+        let run = run_deck(ccx, &deck, dir, scene.name(), threads)?;
+        return Ok((run, json!({"pairs": pairs_json, "contact_slope_MPa_per_mm": extras.contact_slope_mpa_per_mm, "contact_patch_mm": deck_opts.contact_patch_mm})));
+    }
+    // twistopt's θ at each step of ccx's schedule
+    let schedule = &base.step_pressures_kpa;
+    let theta_tw: Vec<f64> = schedule
+        .iter()
+        .map(|&p| tw.steps.iter().find(|s| same_p(s.p_kpa, p)).map(|s| s.theta_deg).ok_or_else(|| anyhow::anyhow!("twistopt did not reach {p} kPa: no rotation to prescribe there")))
+        .collect::<Result<_>>()?;
+    let mut runs = Vec::new();
+    for (i, f) in ROTATION_FACTORS.iter().enumerate() {
+        extras.rotation_deg = Some(theta_tw.iter().map(|t| t * f).collect());
+        let deck = build_deck_with(&v.geometry, &v.mesh, &v.material, scene, targets, deck_opts, &extras)?;
+        runs.push(run_deck(ccx, &deck, dir, &format!("{}-rot{i}", scene.name()), threads)?);
+    }
+    // the root of τ(θ) at each pressure from the first two runs (linear in θ over 2 %)
+    let n = runs.iter().map(|r| r.states.len()).min().unwrap_or(0);
+    let roots: Vec<f64> = (0..n)
+        .map(|k| {
+            let (a, b) = (&runs[0].states[k], &runs[1].states[k]);
+            if (b.tau_nm - a.tau_nm).abs() > 0.0 {
+                a.theta_deg - a.tau_nm * (b.theta_deg - a.theta_deg) / (b.tau_nm - a.tau_nm)
+            } else {
+                a.theta_deg
+            }
+        })
+        .collect();
+    let mut check = if n == schedule.len() {
+        extras.rotation_deg = Some(roots.clone());
+        let deck = build_deck_with(&v.geometry, &v.mesh, &v.material, scene, targets, deck_opts, &extras)?;
+        run_deck(ccx, &deck, dir, &format!("{}-root", scene.name()), threads)?
+    } else {
+        let mut r = runs[0].clone();
+        r.status = "not-converged".into();
+        r.cause = format!("the prescribed-rotation runs reached {n} of {} pressures: {}", schedule.len(), runs.iter().map(|r| r.cause.clone()).collect::<Vec<_>>().join("; "));
+        r.states.truncate(n);
+        r
+    };
+    let residual: Vec<f64> = check.states.iter().map(|s| s.tau_nm).collect();
+    for (s, root) in check.states.iter_mut().zip(&roots) {
+        s.theta_deg = *root;
+    }
+    let info = json!({
+        "pairs": pairs_json,
+        "contact_slope_MPa_per_mm": extras.contact_slope_mpa_per_mm,
+        "contact_patch_mm": deck_opts.contact_patch_mm,
+        "free_twist": "ccx's theta is the rotation at which its cap torque vanishes, interpolated from runs with the rotation prescribed at twistopt's theta times rotation_factors; tau_Nm of the ccx states is the torque left at that root",
+        "rotation_factors": ROTATION_FACTORS,
+        "runs": runs.iter().map(|r| json!({"inp": r.inp, "status": r.status, "states": r.states})).collect::<Vec<_>>(),
+        "roots_deg": roots,
+        "torque_at_roots_Nm": residual,
+    });
+    Ok((check, info))
 }
 
 /// Run the scenes with both codes and write `out/crosscheck.json`; returns its content.
@@ -155,10 +270,13 @@ pub fn crosscheck(problem: &Problem, scenes: &[SceneKind], deck_opts: &DeckOptio
                     "dofs": c.twistopt.dofs,
                     "elements": c.twistopt.elements,
                     "newton_iterations": c.twistopt.newton_iterations,
+                    "snaps_kPa": c.twistopt.snaps_kpa,
+                    "min_contact_distance_mm": c.twistopt.min_contact_distance_mm,
                     "wall_time_s": c.twistopt.wall_time_s,
                     "steps": c.twistopt.steps,
                 },
                 "ccx": c.ccx,
+                "ccx_contact": c.contact,
                 "comparison": c.rows,
             }),
         );

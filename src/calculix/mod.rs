@@ -18,6 +18,7 @@
 //! of the cap rotation).
 
 pub mod compare;
+pub mod contact;
 pub mod dat;
 
 use anyhow::{anyhow, bail, Context, Result};
@@ -107,11 +108,17 @@ pub struct DeckOptions {
     /// apply the cap force p·A_cap (default true; false = pressure on the lateral wall only, as
     /// `scenes.cap_load = false`)
     pub cap_load: bool,
+    /// slope of the linear pressure–overclosure law of contact pairs (MPa/mm): 10 gives the
+    /// contact pressure of twistopt's barrier (0.1 MPa) at 0.01 mm of overclosure
+    pub contact_slope_mpa_per_mm: f64,
+    /// contact pairs take the cavity faces within this distance (mm) of a facing wall in the
+    /// deepest state twistopt computed ([`compare::vacuum_patches`])
+    pub contact_patch_mm: f64,
 }
 
 impl Default for DeckOptions {
     fn default() -> Self {
-        DeckOptions { element: CcxElement::C3D20R, increments: Increments::default(), cap_load: true }
+        DeckOptions { element: CcxElement::C3D20R, increments: Increments::default(), cap_load: true, contact_slope_mpa_per_mm: 10.0, contact_patch_mm: 0.3 }
     }
 }
 
@@ -131,12 +138,65 @@ pub struct Deck {
     pub cap_area_mm2: f64,
     /// pressure (kPa) at the end of each step, in step order
     pub step_pressures_kpa: Vec<f64>,
+    /// the cavity faces with a node on the cap (indices into the mesh's cavity face set)
+    pub cap_faces: Vec<twistopt_solver::mesh::Face>,
+}
+
+impl Deck {
+    /// Gauss points per direction ccx integrates a distributed load with on this element's faces
+    /// (its `mint2d`: 2×2 for C3D20R, C3D8 and C3D8I, 3×3 for C3D20).
+    pub fn load_rule(&self) -> usize {
+        match self.element {
+            CcxElement::C3D20 => 3,
+            CcxElement::C3D20R | CcxElement::C3D8 | CcxElement::C3D8I => 2,
+        }
+    }
+
+    /// The moment about z (N·mm) of the follower pressure's nodal forces on the cap's nodes, with
+    /// the nodes at `x` (deformed, mesh order; only the nodes of [`Deck::cap_faces`] are read),
+    /// at `p_mpa`. ccx's reaction at the rigid body's rotation node sums the internal forces of
+    /// its nodes only; the torque the cap carries also takes the load applied on them, so
+    /// τ = (−RF + this) · 1e-3 N·m. Measured on the coarse example at ±1 kPa: this term is the
+    /// whole 0.9 % (C3D20R) and 1.1 % (C3D20) by which RF alone differed from twistopt's
+    /// reaction, which is the generalised force of the cap's rotation (internal minus external).
+    pub fn cap_pressure_moment(&self, x: &dyn Fn(usize) -> [f64; 3], p_mpa: f64) -> f64 {
+        let top: std::collections::HashSet<usize> = self.mesh.node_sets.get("top").map(|v| v.iter().copied().collect()).unwrap_or_default();
+        let mut m = 0.0;
+        for f in &self.cap_faces {
+            let nodes = self.mesh.face_nodes(*f);
+            let rule = twistopt_solver::shape::FaceRule::new(nodes.len(), self.load_rule());
+            let xs: Vec<[f64; 3]> = nodes.iter().map(|&n| x(n)).collect();
+            for (q, w) in rule.weights.iter().enumerate() {
+                let mut t = [[0.0; 3]; 2];
+                for (a, xa) in xs.iter().enumerate() {
+                    for d in 0..2 {
+                        for c in 0..3 {
+                            t[d][c] += xa[c] * rule.dn[q][a][d];
+                        }
+                    }
+                }
+                // outward normal of the wall element (into the cavity) times dA
+                let nv = [t[0][1] * t[1][2] - t[0][2] * t[1][1], t[0][2] * t[1][0] - t[0][0] * t[1][2], t[0][0] * t[1][1] - t[0][1] * t[1][0]];
+                for (a, &n) in nodes.iter().enumerate() {
+                    if top.contains(&n) {
+                        // the cavity pressure pushes the wall away from the cavity: −p n dA
+                        let fa = [-p_mpa * rule.n[q][a] * nv[0] * w, -p_mpa * rule.n[q][a] * nv[1] * w];
+                        m += xs[a][0] * fa[1] - xs[a][1] * fa[0];
+                    }
+                }
+            }
+        }
+        m
+    }
 }
 
 /// Names of the node sets the results are printed for.
 pub const SET_REF: &str = "REFNODE";
 pub const SET_ROT: &str = "ROTNODE";
 pub const SET_OUTER: &str = "OUTER";
+/// The nodes of the cavity faces that touch the cap: the pressure's nodal forces on the cap's
+/// nodes are found from their positions ([`Deck::cap_pressure_moment`]).
+pub const SET_CAPFACES: &str = "CAPFACES";
 pub const SET_PROBE: &str = "PROBE";
 
 /// The step schedule for the requested pressures: the positive ones in increasing order, then
@@ -177,9 +237,29 @@ pub fn cap_area(mesh: &Mesh) -> Result<f64> {
     Ok(a.abs())
 }
 
+/// What a deck may add to a scene: contact pairs and a prescribed cap rotation.
+#[derive(Clone, Debug, Default)]
+pub struct DeckExtras {
+    /// frictionless face-to-face penalty contact pairs (faces of the deck's mesh,
+    /// [`contact::contact_patches`])
+    pub contact: Vec<contact::PatchPair>,
+    /// slope of the linear pressure–overclosure law (MPa/mm)
+    pub contact_slope_mpa_per_mm: f64,
+    /// the cap rotation about z prescribed at the end of each step (degrees, one per step of the
+    /// schedule), for a scene whose rotation is free: ccx's `*RIGID BODY` with a free rotation
+    /// node converges linearly under vacuum (studies/vacuum § CalculiX under vacuum), so the free
+    /// twist is found as the rotation at which ccx's cap torque vanishes
+    pub rotation_deg: Option<Vec<f64>>,
+}
+
 /// Build the deck of one scene. `mesh_spec` is the problem's mesh (Hex27 in twistopt); the deck
 /// always models the full 360° actuator.
 pub fn build_deck(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Material, scene: SceneKind, pressures_kpa: &[f64], opts: &DeckOptions) -> Result<Deck> {
+    build_deck_with(geom, mesh_spec, material, scene, pressures_kpa, opts, &DeckExtras::default())
+}
+
+/// [`build_deck`] with contact pairs and a prescribed rotation.
+pub fn build_deck_with(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Material, scene: SceneKind, pressures_kpa: &[f64], opts: &DeckOptions, extras: &DeckExtras) -> Result<Deck> {
     let schedule = step_schedule(pressures_kpa);
     if schedule.is_empty() {
         bail!("no non-zero pressure to apply");
@@ -237,6 +317,15 @@ pub fn build_deck(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Mate
     let _ = writeln!(w, "*NODE, NSET={SET_REF}\n{ref_node}, 0.0, 0.0, {L_TUBE:.12e}");
     let _ = writeln!(w, "*NODE, NSET={SET_ROT}\n{rot_node}, 0.0, 0.0, {L_TUBE:.12e}");
     let _ = writeln!(w, "*NSET, NSET={SET_PROBE}\n{}", probe + 1);
+    let top_nodes: std::collections::HashSet<usize> = mesh.node_sets.get("top").map(|v| v.iter().copied().collect()).unwrap_or_default();
+    let cap_faces: Vec<twistopt_solver::mesh::Face> = mesh.face_sets.get("cavity").map(|fs| fs.iter().copied().filter(|f| mesh.face_nodes(*f).iter().any(|n| top_nodes.contains(n))).collect()).unwrap_or_default();
+    let mut cap_face_nodes: Vec<usize> = cap_faces.iter().flat_map(|f| mesh.face_nodes(*f)).collect();
+    cap_face_nodes.sort();
+    cap_face_nodes.dedup();
+    let _ = writeln!(w, "*NSET, NSET={SET_CAPFACES}");
+    for c in cap_face_nodes.chunks(16) {
+        let _ = writeln!(w, "{}", c.iter().map(|n| (n + 1).to_string()).collect::<Vec<_>>().join(", "));
+    }
     // cavity faces grouped by face label (all ζ− = S1 for the structured mesh)
     let faces = &mesh.face_sets["cavity"];
     let mut labels: Vec<&str> = faces.iter().map(|f| f.side.abaqus_label()).collect();
@@ -253,6 +342,19 @@ pub fn build_deck(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Mate
     let _ = writeln!(w, "** Neo-Hooke: W = C10 (I1bar - 3) + (J - 1)^2 / D1, C10 = mu/2, D1 = 2/kappa");
     let _ = writeln!(w, "*HYPERELASTIC, NEO HOOKE\n{:.12e}, {:.12e}", mu / 2.0, 2.0 / kappa);
     let _ = writeln!(w, "*SOLID SECTION, ELSET=EALL, MATERIAL=SILICONE");
+    if !extras.contact.is_empty() {
+        let _ = writeln!(w, "** frictionless contact: face-to-face penalty pairs of facing cavity patches (from a deformed state computed by twistopt)");
+        let _ = writeln!(w, "*SURFACE INTERACTION, NAME=CAVCONTACT\n*SURFACE BEHAVIOR, PRESSURE-OVERCLOSURE=LINEAR\n{:e}", extras.contact_slope_mpa_per_mm);
+        for (k, pair) in extras.contact.iter().enumerate() {
+            for (name, set) in [("S", &pair.slave), ("M", &pair.master)] {
+                let _ = writeln!(w, "*SURFACE, NAME=C{k}{name}, TYPE=ELEMENT");
+                for f in set.iter() {
+                    let _ = writeln!(w, "{}, {}", f.element + 1, f.side.abaqus_label());
+                }
+            }
+            let _ = writeln!(w, "*CONTACT PAIR, INTERACTION=CAVCONTACT, TYPE=SURFACE TO SURFACE\nC{k}S, C{k}M");
+        }
+    }
     let _ = writeln!(w, "*RIGID BODY, NSET=TOP, REF NODE={ref_node}, ROT NODE={rot_node}");
     let _ = writeln!(w, "*BOUNDARY\nBOTTOM, 1, 3");
     let _ = writeln!(
@@ -270,6 +372,41 @@ pub fn build_deck(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Mate
         let _ = writeln!(w, "{rot_node}, 3, 3");
     }
     let inc = &opts.increments;
+    if let Some(rot) = &extras.rotation_deg {
+        // One step of duration n through the schedule's pressures and rotations at times 1 … n
+        // (amplitudes), printed at those times: ccx rejects the first increment of a new step
+        // whose rigid-body rotation is prescribed anew (measured: "residual force too large" down
+        // to increments of 6e-6 of the step), while one step through the same values converges.
+        if rot.len() != schedule.len() {
+            bail!("{} prescribed rotations for {} pressures", rot.len(), schedule.len());
+        }
+        let n = schedule.len() as f64;
+        let table = |vals: &[f64]| -> String {
+            let mut t = vec![format!("0.0, 0.0")];
+            t.extend(vals.iter().enumerate().map(|(k, v)| format!("{}, {:.12e}", k + 1, v)));
+            t.join("\n")
+        };
+        let _ = writeln!(w, "*AMPLITUDE, NAME=APRESS\n{}", table(&schedule.iter().map(|p| p * 1e-3).collect::<Vec<_>>()));
+        let _ = writeln!(w, "*AMPLITUDE, NAME=AROT\n{}", table(&rot.iter().map(|r| r.to_radians()).collect::<Vec<_>>()));
+        let _ = writeln!(w, "*TIME POINTS, NAME=TSTEPS\n{}", (1..=schedule.len()).map(|k| k.to_string()).collect::<Vec<_>>().join(", "));
+        let _ = writeln!(w, "** one step through the pressures {schedule:?} kPa (at times 1 … {n}) with the cap rotation prescribed (the free twist is where the cap torque vanishes)");
+        let _ = writeln!(w, "*STEP, NLGEOM, INC={}", inc.max_count * schedule.len());
+        let _ = writeln!(w, "*CONTROLS, PARAMETERS=TIME INCREMENTATION\n16, 24, 24, 60, 30, 8, , 16");
+        let _ = writeln!(w, "*STATIC\n{:e}, {n:e}, {:e}, {:e}", inc.initial, inc.min, inc.max);
+        let _ = writeln!(w, "*BOUNDARY, AMPLITUDE=AROT\n{rot_node}, 3, 3, 1.0");
+        let _ = writeln!(w, "*DLOAD, AMPLITUDE=APRESS");
+        for lab in &labels {
+            let _ = writeln!(w, "CAVITY_{lab}, P{}, 1.0", &lab[1..]);
+        }
+        if opts.cap_load {
+            let _ = writeln!(w, "** cap force p*A_cap, A_cap = {cap_area_mm2:.9} mm^2\n*CLOAD, AMPLITUDE=APRESS\n{ref_node}, 3, {cap_area_mm2:.12e}");
+        }
+        for (set, what) in [(SET_REF, "U"), (SET_ROT, "U, RF"), (SET_PROBE, "U"), (SET_OUTER, "U"), (SET_CAPFACES, "U")] {
+            let _ = writeln!(w, "*NODE PRINT, NSET={set}, TIME POINTS=TSTEPS\n{what}");
+        }
+        let _ = writeln!(w, "*END STEP");
+        return Ok(Deck { text: s, scene, element: opts.element, mesh, ref_node, rot_node, probe_node: probe + 1, cap_area_mm2, step_pressures_kpa: schedule, cap_faces });
+    }
     for (k, &p) in schedule.iter().enumerate() {
         let pm = p * 1e-3;
         let _ = writeln!(w, "** step {}: cavity pressure to {p} kPa (linear ramp from the previous step's value)", k + 1);
@@ -294,9 +431,10 @@ pub fn build_deck(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: &Mate
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_ROT}\nU, RF");
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_PROBE}\nU");
         let _ = writeln!(w, "*NODE PRINT, NSET={SET_OUTER}\nU");
+        let _ = writeln!(w, "*NODE PRINT, NSET={SET_CAPFACES}\nU");
         let _ = writeln!(w, "*END STEP");
     }
-    Ok(Deck { text: s, scene, element: opts.element, mesh, ref_node, rot_node, probe_node: probe + 1, cap_area_mm2, step_pressures_kpa: schedule })
+    Ok(Deck { text: s, scene, element: opts.element, mesh, ref_node, rot_node, probe_node: probe + 1, cap_area_mm2, step_pressures_kpa: schedule, cap_faces })
 }
 
 /// One state read back from ccx at the end of a step.
@@ -308,8 +446,13 @@ pub struct CcxState {
     /// the cap rotation from the probe node's deformed position (independent of how ccx stores rotations)
     pub theta_probe_deg: f64,
     pub axial_mm: f64,
+    /// the torque the actuator exerts on the cap: −RF of the rotation node plus the moment of the
+    /// pressure's nodal forces on the cap's nodes ([`Deck::cap_pressure_moment`])
     #[serde(rename = "tau_Nm")]
     pub tau_nm: f64,
+    /// −RF of the rotation node alone (the internal forces of the cap's nodes)
+    #[serde(rename = "tau_rf_Nm", default)]
+    pub tau_rf_nm: f64,
     pub max_radius_mm: f64,
 }
 
@@ -412,6 +555,17 @@ pub fn states_at_step_ends(deck: &Deck, blocks: &[dat::Block]) -> Vec<CcxState> 
         let (Some(ur), Some(uo), Some(fo), Some(up)) = (get(uref, deck.ref_node), get(urot, deck.rot_node), get(rrot, deck.rot_node), get(uprobe, deck.probe_node)) else {
             break;
         };
+        // the pressure's moment on the cap's nodes, at their deformed positions
+        let Some(ucap) = find("displacements", SET_CAPFACES) else {
+            break;
+        };
+        let ucap: std::collections::HashMap<usize, [f64; 3]> = ucap.values.iter().map(|(n, v)| (*n, *v)).collect();
+        let xdef = |i: usize| {
+            let x0 = deck.mesh.nodes[i];
+            let u = ucap.get(&(i + 1)).copied().unwrap_or([0.0; 3]);
+            [x0[0] + u[0], x0[1] + u[1], x0[2] + u[2]]
+        };
+        let m_ext = deck.cap_pressure_moment(&xdef, p * 1e-3);
         let x = deck.mesh.nodes[deck.probe_node - 1];
         let phi0 = x[1].atan2(x[0]);
         let phi1 = (x[1] + up[1]).atan2(x[0] + up[0]);
@@ -436,8 +590,10 @@ pub fn states_at_step_ends(deck: &Deck, blocks: &[dat::Block]) -> Vec<CcxState> 
             theta_deg: uo[2].to_degrees(),
             theta_probe_deg: dphi.to_degrees(),
             axial_mm: ur[2],
-            // RF is the support's reaction on the cap; the actuator's torque on the cap is its negative
-            tau_nm: -fo[2] * 1e-3,
+            // RF is the support's reaction on the cap's internal forces; the actuator's torque on
+            // the cap is its negative plus the load applied on the cap's nodes
+            tau_nm: (-fo[2] + m_ext) * 1e-3,
+            tau_rf_nm: -fo[2] * 1e-3,
             max_radius_mm: max_radius,
         });
     }

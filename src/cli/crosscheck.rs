@@ -34,6 +34,13 @@ pub struct CrosscheckArgs {
     /// Compare twistopt's full 360° model instead of the 120° sector (same as --set scenes.full=true).
     #[arg(long)]
     pub full: bool,
+    /// Vacuum with contact: ccx's contact pairs take the cavity faces within this distance (mm)
+    /// of a facing wall in twistopt's deepest state.
+    #[arg(long, default_value_t = 0.3)]
+    pub contact_patch_mm: f64,
+    /// Vacuum with contact: slope of ccx's linear pressure–overclosure law (MPa/mm).
+    #[arg(long, default_value_t = 10.0)]
+    pub contact_slope: f64,
     /// ccx executable (default: $TWISTOPT_CCX, else `ccx` on the PATH).
     #[arg(long)]
     pub ccx: Option<String>,
@@ -57,7 +64,10 @@ pub fn run(args: &CrosscheckArgs) -> Result<()> {
         args.scene.iter().map(|s| SceneKind::parse(s).ok_or_else(|| anyhow!("--scene: unknown scene '{s}' (expected free, blocked, pure-twist or pure-twist-blocked)"))).collect::<Result<_>>()?
     };
     let ccx = args.ccx.clone().unwrap_or_else(ccx_command);
-    let opts = DeckOptions { element, cap_load: problem.scenes.cap_load, ..DeckOptions::default() };
+    if !(args.contact_patch_mm > 0.0 && args.contact_patch_mm.is_finite()) || !(args.contact_slope > 0.0 && args.contact_slope.is_finite()) {
+        anyhow::bail!("--contact-patch-mm and --contact-slope must be positive (got {} and {})", args.contact_patch_mm, args.contact_slope);
+    }
+    let opts = DeckOptions { element, cap_load: problem.scenes.cap_load, contact_slope_mpa_per_mm: args.contact_slope, contact_patch_mm: args.contact_patch_mm, ..DeckOptions::default() };
     crosscheck(&problem, &scenes, &opts, tw, &ccx, &args.out, |l| println!("{l}"))?;
     println!("wrote {}", args.out.join("crosscheck.json").display());
     Ok(())

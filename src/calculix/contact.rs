@@ -1,0 +1,153 @@
+//! Contact pairs for a CalculiX deck, taken from a deformed state that twistopt computed.
+//!
+//! ccx's self-contact of one surface (`*CONTACT PAIR … CAVITY, CAVITY`) pairs every face with
+//! its own neighbours and diverges long before any two walls meet (studies/vacuum § CalculiX
+//! under vacuum). A deck that can follow the collapse needs the facing patches instead, and
+//! those are known only from the collapsed state itself. [`contact_patches`] finds them on the
+//! deck's own mesh: every cavity node that comes within `delta` of a cavity face outside its own
+//! neighbourhood (faces with a vertex within `exclude` of it at rest, as in
+//! `solver::contact::self_contact`) marks its faces and the faces it approaches; the marked faces
+//! split into connected patches (faces sharing a node), and every two patches that approach each
+//! other become one slave/master pair.
+
+use anyhow::{bail, Result};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use twistopt_solver::contact::{face_triangles, point_triangle, Vertex};
+use twistopt_solver::mesh::{Face, Mesh};
+
+/// One contact pair of the deck: slave faces and master faces (faces of the deck's mesh).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct PatchPair {
+    pub slave: Vec<Face>,
+    pub master: Vec<Face>,
+    /// the smallest node-to-face distance between the two patches in the state they came from (mm)
+    pub min_distance_mm: f64,
+    /// cavity nodes of the slave patch within `delta` of the master patch
+    pub close_nodes: usize,
+}
+
+/// The facing patches of the cavity surface `faces` of `mesh` at the deformed nodes `x`.
+pub fn contact_patches(mesh: &Mesh, faces: &[Face], x: &[[f64; 3]], exclude: f64, delta: f64) -> Result<Vec<PatchPair>> {
+    if x.len() != mesh.n_nodes() {
+        bail!("contact_patches: {} positions for {} nodes", x.len(), mesh.n_nodes());
+    }
+    let x0 = &mesh.nodes;
+    let tris: Vec<Vec<[usize; 3]>> = faces
+        .iter()
+        .map(|&f| {
+            face_triangles(mesh, f)
+                .into_iter()
+                .map(|t| {
+                    // face triangles have mesh nodes as vertices
+                    let id = |v: Vertex| v.node().unwrap_or(usize::MAX);
+                    [id(t[0]), id(t[1]), id(t[2])]
+                })
+                .collect()
+        })
+        .collect();
+    let face_nodes: Vec<Vec<usize>> = faces.iter().map(|&f| mesh.face_nodes(f)).collect();
+    let nodes: BTreeSet<usize> = face_nodes.iter().flatten().copied().collect();
+    let d2 = |a: [f64; 3], b: [f64; 3]| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f64>();
+    // faces of each node
+    let mut faces_of: HashMap<usize, Vec<usize>> = HashMap::new();
+    for (fi, fnodes) in face_nodes.iter().enumerate() {
+        for &n in fnodes {
+            faces_of.entry(n).or_default().push(fi);
+        }
+    }
+    // (slave face, master face) → (smallest distance, close nodes)
+    let mut approach: BTreeMap<(usize, usize), (f64, usize)> = BTreeMap::new();
+    let mut marked: BTreeSet<usize> = BTreeSet::new();
+    for &n in &nodes {
+        let p = x[n];
+        for (fi, fnodes) in face_nodes.iter().enumerate() {
+            if fnodes.iter().any(|&m| m == n || d2(x0[m], x0[n]) < exclude * exclude) {
+                continue;
+            }
+            let d = tris[fi].iter().map(|t| point_triangle(p, [x[t[0]], x[t[1]], x[t[2]]]).0).fold(f64::INFINITY, f64::min);
+            if d < delta {
+                marked.insert(fi);
+                for &sf in &faces_of[&n] {
+                    marked.insert(sf);
+                    let e = approach.entry((sf, fi)).or_insert((f64::INFINITY, 0));
+                    e.0 = e.0.min(d);
+                    e.1 += 1;
+                }
+            }
+        }
+    }
+    // connected patches of the marked faces (sharing a node)
+    let marked: Vec<usize> = marked.into_iter().collect();
+    let mut patch_of: HashMap<usize, usize> = HashMap::new();
+    let mut npatch = 0;
+    for &start in &marked {
+        if patch_of.contains_key(&start) {
+            continue;
+        }
+        let mut stack = vec![start];
+        patch_of.insert(start, npatch);
+        while let Some(f) = stack.pop() {
+            for &n in &face_nodes[f] {
+                for &g in &faces_of[&n] {
+                    if marked.binary_search(&g).is_ok() && !patch_of.contains_key(&g) {
+                        patch_of.insert(g, npatch);
+                        stack.push(g);
+                    }
+                }
+            }
+        }
+        npatch += 1;
+    }
+    // patch pairs, the lower-numbered patch as the slave
+    let mut pairs: BTreeMap<(usize, usize), (f64, usize)> = BTreeMap::new();
+    for (&(sf, mf), &(d, k)) in &approach {
+        let (a, b) = (patch_of[&sf], patch_of[&mf]);
+        if a == b {
+            bail!("a patch of the cavity surface approaches itself (faces {sf} and {mf}): it cannot be split into a slave and a master surface; lower delta");
+        }
+        let e = pairs.entry((a.min(b), a.max(b))).or_insert((f64::INFINITY, 0));
+        e.0 = e.0.min(d);
+        if a < b {
+            e.1 += k;
+        }
+    }
+    let members = |p: usize| -> Vec<Face> { marked.iter().filter(|f| patch_of[f] == p).map(|&f| faces[f]).collect() };
+    Ok(pairs.into_iter().map(|((a, b), (d, k))| PatchPair { slave: members(a), master: members(b), min_distance_mm: d, close_nodes: k }).collect())
+}
+
+/// Deformed positions of the nodes of `full` (a full 360° mesh) from a displacement field `u` on
+/// `part` (the same structured mesh or its 120° sector, of any element kind with the same
+/// nodes): every node of `full` is found in `part` rotated about z by a multiple of `2π/copies`.
+pub fn map_deformed(full: &Mesh, part: &Mesh, u: &[[f64; 3]], copies: usize) -> Result<Vec<[f64; 3]>> {
+    let key = |p: [f64; 3]| ((p[0] * 1e5).round() as i64, (p[1] * 1e5).round() as i64, (p[2] * 1e5).round() as i64);
+    let mut at: HashMap<(i64, i64, i64), usize> = HashMap::new();
+    for (i, p) in part.nodes.iter().enumerate() {
+        at.insert(key(*p), i);
+    }
+    let mut out = Vec::with_capacity(full.n_nodes());
+    'node: for p in &full.nodes {
+        for k in 0..copies.max(1) {
+            let a = -(k as f64) * 2.0 * std::f64::consts::PI / copies.max(1) as f64;
+            let (s, c) = a.sin_cos();
+            let q = [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
+            // look up the rounded key and its neighbours (round-off at a rounding boundary)
+            for dx in -1..=1i64 {
+                for dy in -1..=1i64 {
+                    for dz in -1..=1i64 {
+                        let k0 = key(q);
+                        if let Some(&i) = at.get(&(k0.0 + dx, k0.1 + dy, k0.2 + dz)) {
+                            let w = u[i];
+                            // rotate the displacement back by −a
+                            let (s, c) = (-a).sin_cos();
+                            out.push([p[0] + c * w[0] - s * w[1], p[1] + s * w[0] + c * w[1], p[2] + w[2]]);
+                            continue 'node;
+                        }
+                    }
+                }
+            }
+        }
+        bail!("node at ({:.4}, {:.4}, {:.4}) of the full mesh has no counterpart in the model's mesh", p[0], p[1], p[2]);
+    }
+    Ok(out)
+}

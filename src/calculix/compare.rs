@@ -137,6 +137,29 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
     Ok(SceneCheck { scene, twistopt: tw, ccx: run, rows, contact })
 }
 
+/// twistopt's deformed node positions on the deck's full mesh (deck node id − 1 = index) at each
+/// negative pressure it reached, as JSON `{"p_kPa": [..], "x": [[[x, y, z], ..], ..]}`: the input
+/// of studies/vacuum/ccx-contact/surface_gap.py's `--positions`.
+pub fn write_deformed(tw: &SceneResult, base: &super::Deck, sector: bool, path: &Path) -> Result<()> {
+    let Some(fields) = tw.fields.as_ref() else {
+        return Ok(());
+    };
+    let mut ps = Vec::new();
+    let mut xs = Vec::new();
+    for (k, s) in tw.steps.iter().enumerate() {
+        if s.p_kpa < 0.0 {
+            if let Some(u) = fields.displacements.get(k) {
+                ps.push(s.p_kpa);
+                xs.push(map_deformed(&base.mesh, &fields.mesh, u, if sector { 3 } else { 1 })?);
+            }
+        }
+    }
+    if let Some(d) = path.parent() {
+        std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+    }
+    std::fs::write(path, serde_json::to_string(&json!({"p_kPa": ps, "x": xs}))?).with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// The ccx side of a vacuum scene with contact: the deck gets the facing patches of twistopt's
 /// deepest state as face-to-face penalty pairs ([`vacuum_patches`]). A held rotation is one run.
 /// A free rotation is found as the root of ccx's cap torque: ccx's `*RIGID BODY` with a free
@@ -148,6 +171,7 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
 /// run's with θ the root.
 #[allow(clippy::too_many_arguments)]
 pub fn vacuum_contact_runs(tw: &SceneResult, base: &super::Deck, v: &Validated, scene: SceneKind, targets: &[f64], deck_opts: &DeckOptions, sector: bool, ccx: &str, dir: &Path, threads: usize) -> Result<(CcxRun, Value)> {
+    write_deformed(tw, base, sector, &dir.join("twistopt-deformed.json"))?;
     let pairs = vacuum_patches(tw, base, sector, deck_opts.contact_patch_mm)?;
     let mut extras = DeckExtras { contact: pairs.clone(), contact_slope_mpa_per_mm: deck_opts.contact_slope_mpa_per_mm, rotation_deg: None };
     let pairs_json = json!(pairs

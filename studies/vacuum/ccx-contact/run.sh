@@ -15,3 +15,6 @@ p='load.pressures_kPa=[-10,-20,-30,-35,-40,-45]'
 # node-on-triangle gap (twistopt's contact proxy) against the quadratic surfaces' gap, without contact
 python3 studies/vacuum/ccx-contact/surface_gap.py "$out/24x16x1/blocked/blocked.inp" "$out/24x16x1/gap" > "$out/24x16x1/surface_gap.txt"
 python3 studies/vacuum/ccx-contact/surface_gap.py "$out/coarse/blocked/blocked.inp" "$out/coarse/gap" > "$out/coarse/surface_gap.txt"
+# the same two gaps on twistopt's own states with contact (blocked scene)
+python3 studies/vacuum/ccx-contact/surface_gap.py "$out/24x16x1/blocked/blocked.inp" --positions "$out/24x16x1/blocked/twistopt-deformed.json" > "$out/24x16x1/surface_gap_twistopt.txt"
+python3 studies/vacuum/ccx-contact/surface_gap.py "$out/coarse/blocked/blocked.inp" --positions "$out/coarse/blocked/twistopt-deformed.json" > "$out/coarse/surface_gap_twistopt.txt"

@@ -17,6 +17,8 @@ Only the first pair is measured (the decks' pairs are rotated copies of each oth
 
 Usage (from the project root; needs ccx and numpy):
   python3 studies/vacuum/ccx-contact/surface_gap.py OUT/blocked/blocked.inp WORKDIR [M]
+or, on twistopt's own states with contact (no ccx run):
+  python3 studies/vacuum/ccx-contact/surface_gap.py OUT/blocked/blocked.inp --positions OUT/blocked/twistopt-deformed.json [M]
 """
 import os
 import re
@@ -116,6 +118,8 @@ def gaps(x, els, slave, master, m):
 
 
 def main():
+    if len(sys.argv) > 2 and sys.argv[2] == "--positions":
+        return main_positions(sys.argv[1], sys.argv[3], int(sys.argv[4]) if len(sys.argv) > 4 else 7)
     deck, work = sys.argv[1], sys.argv[2]
     m = int(sys.argv[3]) if len(sys.argv) > 3 else 7
     text = open(deck).read()
@@ -139,6 +143,22 @@ def main():
         for k in pairs:
             ng, sg = gaps(x, els, surfaces[k + "S"], surfaces[k + "M"], m)
             print(f"{t:4.0f}  {k}  {ng:.4f}  {sg:.4f}", flush=True)
+
+
+def main_positions(deck, positions, m):
+    """The same two gaps on twistopt's own states with contact (`twistopt-deformed.json`, written
+    by `crosscheck` next to the deck): every node is kept off the facing wall by the barrier;
+    this shows whether the quadratic surfaces between the nodes are."""
+    import json
+    nodes, els, surfaces = read_deck(open(deck).read())
+    d = json.load(open(positions))
+    pairs = sorted({k[:-1] for k in surfaces})[:1]
+    print("p_kPa  pair  node_gap_mm  surface_gap_mm")
+    for p, xs in zip(d["p_kPa"], d["x"]):
+        x = {i + 1: np.array(v) for i, v in enumerate(xs)}
+        for k in pairs:
+            ng, sg = gaps(x, els, surfaces[k + "S"], surfaces[k + "M"], m)
+            print(f"{p:6.1f}  {k}  {ng:.4f}  {sg:.4f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -500,8 +500,10 @@ impl Problem {
                     bail!("scenes.contact.axle_radius_mm: the axle is in the pure-twist scenes only, and scenes.run has none");
                 }
             }
-            if c.reach_mm <= 2.0 * crate::geometry::T_WALL {
-                bail!("scenes.contact.reach_mm = {} must exceed the excluded neighbourhood 2t = {} mm", c.reach_mm, 2.0 * crate::geometry::T_WALL);
+            // each cavity node ignores the cavity surface within one wall thickness t of it
+            // (`solver::contact::self_contact`): a reach inside that finds no other wall
+            if c.reach_mm <= crate::geometry::T_WALL {
+                bail!("scenes.contact.reach_mm = {} must exceed the excluded neighbourhood t = {} mm (each node ignores the cavity surface within one wall thickness of it)", c.reach_mm, crate::geometry::T_WALL);
             }
         }
         if !(s.ballooning_limit_mm.is_finite() && s.ballooning_limit_mm > crate::geometry::R_TUBE) {

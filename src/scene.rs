@@ -717,7 +717,8 @@ fn pressure_path_with(
             stops.push(Stop { name: "self-contact".into(), output: OUT_CONTACT, threshold: 0.0, rising: false });
         }
         if vacuum && opts.contact.is_some() {
-            // a vanishing cavity means walls passed each other outside the contact candidates
+            // a vanishing cavity: the cavity has closed (its walls all in contact), or walls
+            // passed each other outside the contact candidates
             stops.push(Stop { name: "cavity-closed".into(), output: OUT_VOLUME, threshold: 0.0, rising: false });
         }
     }
@@ -820,7 +821,7 @@ fn scene_path(
         PathEnd::Completed => None,
         PathEnd::Stopped(i) if stops[i].name == "ballooning" => Some((SceneStatus::Ballooning, format!("max deformed radius reached the ballooning limit {limit:.2} mm at p = {p_last:.4} kPa"))),
         PathEnd::Stopped(i) if stops[i].name == "cavity-closed" => {
-            Some((SceneStatus::SelfContact, format!("the cavity volume vanished at p = {p_last:.4} kPa (or in the snap beyond it): walls passed each other beyond the contact candidates (raise the contact reach_mm)")))
+            Some((SceneStatus::SelfContact, format!("the cavity volume vanished at p = {p_last:.4} kPa (or in the snap beyond it): the cavity has closed, or walls passed each other beyond the contact candidates (if a larger scenes.contact.reach_mm ends at the same pressure, the cavity closed)")))
         }
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
         PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),

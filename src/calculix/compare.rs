@@ -4,7 +4,7 @@ use anyhow::{Context, Result};
 use serde_json::{json, Value};
 use std::path::Path;
 
-use super::contact::{contact_patches, map_deformed, PatchPair};
+use super::contact::{contact_patches, map_deformed, surface_gaps, PatchPair};
 use super::{build_deck, build_deck_with, ccx_version, run_deck, CcxRun, CcxState, DeckExtras, DeckOptions};
 use crate::evaluate::select_steps;
 use crate::problem::{Problem, Validated};
@@ -137,6 +137,37 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
     Ok(SceneCheck { scene, twistopt: tw, ccx: run, rows, contact })
 }
 
+/// Per negative step of twistopt's path: the smallest node gap and (sampled, signed) surface
+/// gap over the contact pairs, on twistopt's own element's full mesh ([`surface_gaps`], 7 × 7
+/// samples per face). The barrier keeps the first ≥ 0; the second shows whether the faces
+/// between the nodes overlap.
+pub fn twistopt_surface_gaps(tw: &SceneResult, v: &Validated, pairs: &[PatchPair], sector: bool) -> Result<Value> {
+    let Some(fields) = tw.fields.as_ref() else {
+        return Ok(Value::Null);
+    };
+    if pairs.is_empty() {
+        return Ok(Value::Null);
+    }
+    let full = crate::meshing::build_mesh(&v.geometry, &v.mesh.with_sector(false))?.mesh;
+    let full = if full.kind == fields.mesh.kind { full } else { full.to_kind(fields.mesh.kind) };
+    let mut rows = Vec::new();
+    for (k, s) in tw.steps.iter().enumerate() {
+        if s.p_kpa >= 0.0 {
+            continue;
+        }
+        let Some(u) = fields.displacements.get(k) else { continue };
+        let x = map_deformed(&full, &fields.mesh, u, if sector { 3 } else { 1 })?;
+        let (mut node_gap, mut surface_gap) = (f64::INFINITY, f64::INFINITY);
+        for pair in pairs {
+            let (n, g) = surface_gaps(&full, &pair.slave, &pair.master, &x, 7);
+            node_gap = node_gap.min(n);
+            surface_gap = surface_gap.min(g);
+        }
+        rows.push(json!({"p_kPa": s.p_kpa, "node_gap_mm": node_gap, "surface_gap_mm": surface_gap}));
+    }
+    Ok(json!({"element": format!("{:?}", fields.mesh.kind), "pairs": pairs.len(), "samples_per_face": 49, "steps": rows}))
+}
+
 /// twistopt's deformed node positions on the deck's full mesh (deck node id − 1 = index) at each
 /// negative pressure it reached, as JSON `{"p_kPa": [..], "x": [[[x, y, z], ..], ..]}`: the input
 /// of studies/vacuum/ccx-contact/surface_gap.py's `--positions`.
@@ -173,6 +204,7 @@ pub fn write_deformed(tw: &SceneResult, base: &super::Deck, sector: bool, path: 
 pub fn vacuum_contact_runs(tw: &SceneResult, base: &super::Deck, v: &Validated, scene: SceneKind, targets: &[f64], deck_opts: &DeckOptions, sector: bool, ccx: &str, dir: &Path, threads: usize) -> Result<(CcxRun, Value)> {
     write_deformed(tw, base, sector, &dir.join("twistopt-deformed.json"))?;
     let pairs = vacuum_patches(tw, base, sector, deck_opts.contact_patch_mm)?;
+    let gaps = twistopt_surface_gaps(tw, v, &pairs, sector)?;
     let mut extras = DeckExtras { contact: pairs.clone(), contact_slope_mpa_per_mm: deck_opts.contact_slope_mpa_per_mm, rotation_deg: None };
     let pairs_json = json!(pairs
         .iter()
@@ -181,7 +213,7 @@ pub fn vacuum_contact_runs(tw: &SceneResult, base: &super::Deck, v: &Validated, 
     if !scene.rotation_free() {
         let deck = build_deck_with(&v.geometry, &v.mesh, &v.material, scene, targets, deck_opts, &extras)?;
         let run = run_deck(ccx, &deck, dir, scene.name(), threads)?;
-        return Ok((run, json!({"pairs": pairs_json, "contact_slope_MPa_per_mm": extras.contact_slope_mpa_per_mm, "contact_patch_mm": deck_opts.contact_patch_mm})));
+        return Ok((run, json!({"pairs": pairs_json, "contact_slope_MPa_per_mm": extras.contact_slope_mpa_per_mm, "contact_patch_mm": deck_opts.contact_patch_mm, "twistopt_surface_gap": gaps})));
     }
     // twistopt's θ at each step of ccx's schedule
     let schedule = &base.step_pressures_kpa;
@@ -226,6 +258,7 @@ pub fn vacuum_contact_runs(tw: &SceneResult, base: &super::Deck, v: &Validated, 
         "pairs": pairs_json,
         "contact_slope_MPa_per_mm": extras.contact_slope_mpa_per_mm,
         "contact_patch_mm": deck_opts.contact_patch_mm,
+        "twistopt_surface_gap": gaps,
         "free_twist": "ccx's theta is the rotation at which its cap torque vanishes, interpolated from runs with the rotation prescribed at twistopt's theta times rotation_factors; tau_Nm of the ccx states is the torque left at that root",
         "rotation_factors": ROTATION_FACTORS,
         "runs": runs.iter().map(|r| json!({"inp": r.inp, "status": r.status, "states": r.states})).collect::<Vec<_>>(),

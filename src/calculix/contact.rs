@@ -151,3 +151,103 @@ pub fn map_deformed(full: &Mesh, part: &Mesh, u: &[[f64; 3]], copies: usize) -> 
     }
     Ok(out)
 }
+
+/// The gap between two patches of a mesh's faces at the nodes `x`, measured two ways: from the
+/// slave patch's nodes to the master patch's node triangles ([`face_triangles`], what the contact
+/// barrier sees), and between the faces' own (quadratic) surfaces, each sampled on an m × m grid
+/// per face, negative where a slave sample lies inside the master wall (behind the master face's
+/// outward normal). Returns (node gap, signed surface gap) in mm.
+pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]], m: usize) -> (f64, f64) {
+    let m = m.max(2);
+    let node_tris: Vec<[[f64; 3]; 3]> = master
+        .iter()
+        .flat_map(|&f| face_triangles(mesh, f))
+        .map(|t| [0, 1, 2].map(|i| x[t[i].node().unwrap_or(0)]))
+        .collect();
+    let mut node_gap = f64::INFINITY;
+    let slave_nodes: BTreeSet<usize> = slave.iter().flat_map(|&f| mesh.face_nodes(f)).collect();
+    for &n in &slave_nodes {
+        for t in &node_tris {
+            node_gap = node_gap.min(point_triangle(x[n], *t).0);
+        }
+    }
+    let grid = |f: Face| -> Vec<Vec<[f64; 3]>> {
+        let nodes = mesh.face_nodes(f);
+        (0..m)
+            .map(|i| {
+                (0..m)
+                    .map(|j| {
+                        let st = [-1.0 + 2.0 * i as f64 / (m - 1) as f64, -1.0 + 2.0 * j as f64 / (m - 1) as f64];
+                        let (nn, _) = twistopt_solver::shape::face_shape(nodes.len(), st);
+                        let mut p = [0.0; 3];
+                        for (a, &n) in nodes.iter().enumerate() {
+                            for c in 0..3 {
+                                p[c] += nn[a] * x[n][c];
+                            }
+                        }
+                        p
+                    })
+                    .collect()
+            })
+            .collect()
+    };
+    // master sub-triangles with their (outward, into the cavity) normals
+    let mut tris: Vec<([[f64; 3]; 3], [f64; 3])> = Vec::new();
+    for &f in master {
+        let g = grid(f);
+        for i in 0..m - 1 {
+            for j in 0..m - 1 {
+                let (a, b, c, d) = (g[i][j], g[i + 1][j], g[i + 1][j + 1], g[i][j + 1]);
+                for t in [[a, b, c], [a, c, d]] {
+                    let u = [t[1][0] - t[0][0], t[1][1] - t[0][1], t[1][2] - t[0][2]];
+                    let v = [t[2][0] - t[0][0], t[2][1] - t[0][1], t[2][2] - t[0][2]];
+                    tris.push((t, [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]));
+                }
+            }
+        }
+    }
+    let (mut best, mut signed) = (f64::INFINITY, f64::INFINITY);
+    for &f in slave {
+        for row in grid(f) {
+            for p in row {
+                for (t, n) in &tris {
+                    let d = point_triangle(p, *t).0;
+                    if d < best {
+                        best = d;
+                        let side = (p[0] - t[0][0]) * n[0] + (p[1] - t[0][1]) * n[1] + (p[2] - t[0][2]) * n[2];
+                        signed = if side >= 0.0 { d } else { -d };
+                    }
+                }
+            }
+        }
+    }
+    (node_gap, signed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use twistopt_solver::mesh::ElementKind;
+
+    /// A unit block of Hex20: its bottom faces seen from its top faces are 1 away, and inside the
+    /// top faces' element (behind their outward normal), so the signed surface gap is −1; with a
+    /// midside node of the bottom lifted by 0.3 (a sample point of the 5 × 5 grid), both gaps
+    /// drop to 0.7.
+    #[test]
+    fn surface_gaps_of_a_block() {
+        let m = twistopt_solver::meshgen::boxed(ElementKind::Hex20, [1, 1, 1], [1.0, 1.0, 1.0]);
+        let (bottom, top) = (m.face_sets["zmin"].clone(), m.face_sets["zmax"].clone());
+        let (n, s) = surface_gaps(&m, &bottom, &top, &m.nodes, 5);
+        assert!((n - 1.0).abs() < 1e-12 && (s + 1.0).abs() < 1e-12, "{n} {s}");
+        let (n, s) = surface_gaps(&m, &top, &bottom, &m.nodes, 5);
+        assert!((n - 1.0).abs() < 1e-12 && (s + 1.0).abs() < 1e-12, "{n} {s}");
+        // the bottom face's midside node at (0.5, 0, 0) lifted by 0.3: the quadratic edge
+        // x(s) peaks at the node, so both gaps drop to 0.7 there
+        let mut x = m.nodes.clone();
+        let mid = (0..x.len()).find(|&i| (x[i][0] - 0.5).abs() < 1e-12 && x[i][1].abs() < 1e-12 && x[i][2].abs() < 1e-12).unwrap();
+        x[mid][2] += 0.3;
+        let (n, s) = surface_gaps(&m, &bottom, &top, &x, 5);
+        assert!((n - 0.7).abs() < 1e-12, "{n}");
+        assert!((s + 0.7).abs() < 1e-12, "{s}");
+    }
+}

@@ -51,15 +51,12 @@ pub fn vacuum_patches(tw: &SceneResult, base: &super::Deck, sector: bool, delta_
     let u = fields.displacements.get(k).ok_or_else(|| anyhow::anyhow!("no displacement field for step {k}"))?;
     let x = map_deformed(&base.mesh, &fields.mesh, u, if sector { 3 } else { 1 })?;
     let faces = base.mesh.face_sets.get("cavity").ok_or_else(|| anyhow::anyhow!("the deck's mesh has no cavity faces"))?;
+    // a patch that approaches itself cannot be split into slave and master: narrow the patches
     let mut delta = delta_mm;
     loop {
         match contact_patches(&base.mesh, faces, &x, crate::geometry::T_WALL, delta) {
-            Ok(p) => return Ok(p),
-            Err(e) if delta > 0.05 => {
-                let _ = e;
-                delta *= 0.5;
-            }
-            Err(e) => return Err(e),
+            Err(_) if delta > 0.05 => delta *= 0.5,
+            r => return r,
         }
     }
 }

@@ -15,6 +15,11 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use twistopt_solver::contact::{face_triangles, point_triangle, Vertex};
 use twistopt_solver::mesh::{Face, Mesh};
+use twistopt_solver::scalar::{cross, dot};
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
 
 /// One contact pair of the deck: slave faces and master faces (faces of the deck's mesh).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -199,9 +204,7 @@ pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]]
             for j in 0..m - 1 {
                 let (a, b, c, d) = (g[i][j], g[i + 1][j], g[i + 1][j + 1], g[i][j + 1]);
                 for t in [[a, b, c], [a, c, d]] {
-                    let u = [t[1][0] - t[0][0], t[1][1] - t[0][1], t[1][2] - t[0][2]];
-                    let v = [t[2][0] - t[0][0], t[2][1] - t[0][1], t[2][2] - t[0][2]];
-                    tris.push((t, [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]));
+                    tris.push((t, cross(sub(t[1], t[0]), sub(t[2], t[0]))));
                 }
             }
         }
@@ -214,8 +217,7 @@ pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]]
                     let d = point_triangle(p, *t).0;
                     if d < best {
                         best = d;
-                        let side = (p[0] - t[0][0]) * n[0] + (p[1] - t[0][1]) * n[1] + (p[2] - t[0][2]) * n[2];
-                        signed = if side >= 0.0 { d } else { -d };
+                        signed = if dot(sub(p, t[0]), *n) >= 0.0 { d } else { -d };
                     }
                 }
             }

@@ -176,7 +176,7 @@ impl Deck {
                     }
                 }
                 // outward normal of the wall element (into the cavity) times dA
-                let nv = [t[0][1] * t[1][2] - t[0][2] * t[1][1], t[0][2] * t[1][0] - t[0][0] * t[1][2], t[0][0] * t[1][1] - t[0][1] * t[1][0]];
+                let nv = twistopt_solver::scalar::cross(t[0], t[1]);
                 for (a, &n) in nodes.iter().enumerate() {
                     if top.contains(&n) {
                         // the cavity pressure pushes the wall away from the cavity: −p n dA

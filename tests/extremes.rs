@@ -113,6 +113,17 @@ fn coarsest_preset_to_the_limit_point() {
     assert!(["limit-point", "divergence", "iteration-limit", "ballooning"].contains(&r.status.name()), "{}: {}", r.status, r.cause);
 }
 
+#[test]
+fn a_stability_limit_just_past_the_requested_pressure() {
+    // found by the property test below (CI, d50b3ca): one step under volume control passed both
+    // −19.18 kPa and the stability limit at −19.41 kPa, and the limit was recorded past the end
+    let t = [-19.183434112336812];
+    let r = run_pressure(&geom(17.014649150171678, 18.330847083524986, 99.84959668021746), &opts("12x4x1", 300.0), SceneKind::Free, &t).unwrap();
+    check(&r, &t);
+    assert_eq!(r.status, SceneStatus::Completed, "{}", r.cause);
+    assert!((r.steps.iter().map(|s| s.p_kpa).fold(0.0, f64::min) - t[0]).abs() < 1e-9);
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 6, .. ProptestConfig::default() })]
 

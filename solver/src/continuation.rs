@@ -952,14 +952,7 @@ impl<'a, M: PathModel> Follower<'a, M> {
                     if ctl == Control::Functional {
                         self.emit_stations(&cur, &new, &st, &mut next_station, dir);
                         if (new.lam - lam_end) * dir >= 0.0 {
-                            // (near a fold λ is a poor parameter: else located on c)
-                            let n = match self.solve_between(&cur, &new, Control::Load, lam_end) {
-                                Ok(n) => n,
-                                Err(_) => {
-                                    let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
-                                    self.locate_crossing(&cur, &new, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0).filter(|e| (e.lam - lam_end).abs() <= ftol).unwrap_or(new)
-                                }
-                            };
+                            let n = self.land_on_end(&cur, new, lam_end, dir);
                             self.push(&n, PointKind::End, its_point);
                             return (PathEnd::Completed, Some(n), ctl);
                         }
@@ -998,23 +991,40 @@ impl<'a, M: PathModel> Follower<'a, M> {
                 }
                 Err(ev) => {
                     let (end, n) = match ev {
-                        // λ_end lies before a fold met under functional control (the fold
-                        // just beyond it): the path ends there, located on c
-                        Event::Fold(n) if ctl == Control::Functional && (n.lam - lam_end) * dir >= 0.0 && (cur.lam - lam_end) * dir < 0.0 => {
-                            let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
-                            match self.locate_crossing(&cur, &n, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0) {
-                                Some(e) if (e.lam - lam_end).abs() <= ftol => (PathEnd::Completed, e),
-                                _ => (PathEnd::Fold, n),
-                            }
-                        }
                         Event::Stop(i, n) => (PathEnd::Stopped(i), n),
                         Event::Fold(n) => (PathEnd::Fold, n),
                         Event::Instability(n) => (PathEnd::Instability, n),
+                    };
+                    // an event (a fold, a stability limit, a threshold) located beyond λ_end (a
+                    // step under functional control passed both): the path reached λ_end first
+                    // and ends there
+                    let (end, n) = if (n.lam - lam_end) * dir >= 0.0 && (cur.lam - lam_end) * dir < 0.0 && n.lam != lam_end {
+                        let e = self.land_on_end(&cur, n, lam_end, dir);
+                        if (e.lam - lam_end).abs() <= self.o.locate_tol * lam_end.abs().max(1e-300) {
+                            (PathEnd::Completed, e)
+                        } else {
+                            (end, e)
+                        }
+                    } else {
+                        (end, n)
                     };
                     self.emit_stations(&cur, &n, &st, &mut next_station, dir);
                     self.push(&n, PointKind::End, its_point);
                     return (end, Some(n), ctl);
                 }
+            }
+        }
+    }
+
+    /// The point at λ_end between node a (before it) and node b (at or beyond it): solved under
+    /// load control from their Hermite cubic, else (near a fold λ is a poor parameter) located
+    /// on c; b itself when neither converges.
+    fn land_on_end(&mut self, a: &Node<M>, b: Node<M>, lam_end: f64, dir: f64) -> Node<M> {
+        match self.solve_between(a, &b, Control::Load, lam_end) {
+            Ok(n) => n,
+            Err(_) => {
+                let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
+                self.locate_crossing(a, &b, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0).filter(|e| (e.lam - lam_end).abs() <= ftol).unwrap_or(b)
             }
         }
     }
@@ -1863,6 +1873,8 @@ mod tests {
     enum Toy {
         Fold,
         Pitchfork,
+        /// the pitchfork with c = u as its control functional
+        PitchforkC,
     }
 
     /// the pitchfork's critical load
@@ -1882,7 +1894,10 @@ mod tests {
             let (u, v) = (q[0], q[1]);
             let (r, k, control) = match self {
                 Toy::Fold => (vec![f_fold(u) - lam, v], nalgebra::Matrix2::new(3.0 * u * u - 6.0 * u + 2.5, 0.0, 0.0, 1.0), Some((u, vec![1.0, 0.0]))),
-                Toy::Pitchfork => (vec![u - lam, (LC - lam) * v + v * v * v], nalgebra::Matrix2::new(1.0, 0.0, 0.0, LC - lam + 3.0 * v * v), None),
+                Toy::Pitchfork | Toy::PitchforkC => {
+                    let control = matches!(self, Toy::PitchforkC).then(|| (u, vec![1.0, 0.0]));
+                    (vec![u - lam, (LC - lam) * v + v * v * v], nalgebra::Matrix2::new(1.0, 0.0, 0.0, LC - lam + 3.0 * v * v), control)
+                }
             };
             Ok(Eval { r, scale: 1.0, control, min_det: 1.0, k: tangent.then_some(k), potential: None })
         }
@@ -1905,7 +1920,7 @@ mod tests {
         fn load_rate(&self, q: &[f64], _lam: f64, _ev: &Eval<Self::Matrix>) -> Result<Vec<f64>, EvalFailure> {
             Ok(match self {
                 Toy::Fold => vec![-1.0, 0.0],
-                Toy::Pitchfork => vec![-1.0, -q[1]],
+                Toy::Pitchfork | Toy::PitchforkC => vec![-1.0, -q[1]],
             })
         }
         fn outputs(&self, q: &[f64], _lam: f64, _ev: &Eval<Self::Matrix>) -> Vec<f64> {
@@ -1975,6 +1990,26 @@ mod tests {
         assert!((end.lam - 1.5).abs() < 1e-12 && (f_fold(end.q[0]) - 1.5).abs() < 1e-8 && end.q[0] > 2.0);
         assert_stable_equilibria(&m, &res.points);
         assert!(res.stats.failed_attempts >= 1);
+    }
+
+    #[test]
+    fn a_stability_limit_beyond_the_end_of_a_functional_step_leaves_the_path_completed() {
+        // under functional control one step passes both λ_end = 0.9 and the stability limit
+        // λc = 0.9137 beyond it: the path ends at λ_end, completed, not at the limit past it
+        let m = Toy::PitchforkC;
+        let o = ContinuationOptions { start_control: Control::Functional, initial_functional: Some(0.5), ..ContinuationOptions::default() };
+        let stations = [0.85];
+        let res = follow(&m, &[0.5, 0.0], 0.5, 0.9, &stations, &[], &o);
+        assert_eq!(res.end, PathEnd::Completed, "{:?}", res.points.iter().map(|p| (p.lam, p.kind.clone())).collect::<Vec<_>>());
+        let end = res.points.last().unwrap();
+        assert_eq!(end.kind, PointKind::End);
+        assert!((end.lam - 0.9).abs() < 1e-9 && (end.q[0] - 0.9).abs() < 1e-9 && end.stable, "ended at λ {} q {:?}", end.lam, end.q);
+        assert!(res.points.iter().all(|p| p.lam <= 0.9 + 1e-9), "a point past λ_end");
+        assert!(res.points.iter().any(|p| p.kind == PointKind::Station(0) && (p.lam - 0.85).abs() < 1e-9));
+        // the same step with the end beyond the limit stops there
+        let res = follow(&m, &[0.5, 0.0], 0.5, 1.0, &[], &[], &o);
+        assert_eq!(res.end, PathEnd::Instability);
+        assert!((res.points.last().unwrap().lam - LC).abs() < 1e-3, "{}", res.points.last().unwrap().lam);
     }
 
     #[test]

@@ -10,7 +10,7 @@
 use twistopt::geometry::{ActuatorGeometry, Design, RangePolicy};
 use twistopt::meshing::MeshSpec;
 use twistopt::scene::*;
-use twistopt_solver::continuation::{critical_mode, follow, Control, ContinuationOptions, Eval, EvalFailure, PathModel, PathPoint};
+use twistopt_solver::continuation::{critical_mode, follow, ContinuationOptions, Control, Eval, EvalFailure, PathModel, PathPoint};
 use twistopt_solver::model::SolveError;
 
 /// A path model whose control functional is the amplitude φ·q along a direction (the path then
@@ -81,9 +81,26 @@ fn main() {
         let umax = u.iter().map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()).fold(0.0f64, f64::max);
         let off: Vec<[f64; 3]> = u.iter().map(|d| [d[0] * imp / umax, d[1] * imp / umax, d[2] * imp / umax]).collect();
         // where the mode is largest
-        let (imax, _) = u.iter().enumerate().fold((0, 0.0), |a, (i, d)| { let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(); if n > a.1 { (i, n) } else { a } });
+        let (imax, _) = u.iter().enumerate().fold((0, 0.0), |a, (i, d)| {
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if n > a.1 {
+                (i, n)
+            } else {
+                a
+            }
+        });
         let x = sm.model.mesh.nodes[imax];
-        println!("buckling mode at p = {:.3} kPa: largest at ({:.2},{:.2},{:.2}) r = {:.2}, direction ({:.2},{:.2},{:.2}); imperfection {imp} mm", b.lam * p_end, x[0], x[1], x[2], (x[0]*x[0]+x[1]*x[1]).sqrt(), off[imax][0]/imp, off[imax][1]/imp, off[imax][2]/imp);
+        println!(
+            "buckling mode at p = {:.3} kPa: largest at ({:.2},{:.2},{:.2}) r = {:.2}, direction ({:.2},{:.2},{:.2}); imperfection {imp} mm",
+            b.lam * p_end,
+            x[0],
+            x[1],
+            x[2],
+            (x[0] * x[0] + x[1] * x[1]).sqrt(),
+            off[imax][0] / imp,
+            off[imax][1] / imp,
+            off[imax][2] / imp
+        );
         sm2 = SceneModel::build_perturbed(&geom, &opts, kind, Some(&off)).unwrap();
         lp2 = sm2.path(sm2.loads(0.0, 0.0), sm2.loads(p_end, 0.0), Some(0.0));
         // the imperfect path is smooth: follow it through the loss of stability under volume
@@ -129,7 +146,13 @@ fn main() {
         let f = |n: usize| format!("({:.2},{:.2},{:.2})", x0[n][0], x0[n][1], x0[n][2]);
         println!(
             "p {:8.3} kPa θ {:8.3}° V {:9.1} margin {:7.3} | closest same-sector pair {:.3} mm: {} – {}",
-            r.p_kpa, r.theta_deg, r.cavity_volume_mm3, pt.outputs.get(OUT_CONTACT).copied().unwrap_or(f64::NAN), best.0, f(best.1), f(best.2)
+            r.p_kpa,
+            r.theta_deg,
+            r.cavity_volume_mm3,
+            pt.outputs.get(OUT_CONTACT).copied().unwrap_or(f64::NAN),
+            best.0,
+            f(best.1),
+            f(best.2)
         );
     }
 }

@@ -24,6 +24,15 @@ fn main() {
     println!("scene {} on {mesh}: {} ({}) in {:.1} s, {} Newton iterations ({} failed)", r.scene, r.status.name(), r.cause, t0.elapsed().as_secs_f64(), r.newton_iterations, r.path.failed_iterations);
     println!("{:>10} {:>9} {:>9} {:>10} {:>9} {:>8} snapped", "p kPa", "θ deg", "τ N·m", "V mm³", "d_min mm", "its");
     for s in &r.steps {
-        println!("{:>10.4} {:>9.4} {:>9.5} {:>10.1} {:>9.4} {:>8} {}", s.p_kpa, s.theta_deg, s.tau_nm, s.cavity_volume_mm3, s.contact_distance_mm.unwrap_or(f64::NAN), s.newton_iterations, if s.snapped { "snap" } else { "" });
+        println!(
+            "{:>10.4} {:>9.4} {:>9.5} {:>10.1} {:>9.4} {:>8} {}",
+            s.p_kpa,
+            s.theta_deg,
+            s.tau_nm,
+            s.cavity_volume_mm3,
+            s.contact_distance_mm.unwrap_or(f64::NAN),
+            s.newton_iterations,
+            if s.snapped { "snap" } else { "" }
+        );
     }
 }

@@ -1151,7 +1151,8 @@ pub fn problem_starting_points(op: &OptProblem, count: usize, from_design: bool,
         .variables
         .iter()
         .map(|v| {
-            let x = if v.name == P_PRESSURE { p_start } else { None }.or_else(|| op.fixed.get(&v.name).copied())
+            let x = if v.name == P_PRESSURE { p_start } else { None }
+                .or_else(|| op.fixed.get(&v.name).copied())
                 // an optional parameter the design does not carry: its absent value (0)
                 .or_else(|| crate::geometry::DesignSpace::optional().get(&v.name).map(|_| 0.0))
                 .unwrap_or(v.upper);

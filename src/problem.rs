@@ -503,7 +503,11 @@ impl Problem {
             // each cavity node ignores the cavity surface within one wall thickness t of it
             // (`solver::contact::self_contact`): a reach inside that finds no other wall
             if c.reach_mm <= crate::geometry::T_WALL {
-                bail!("scenes.contact.reach_mm = {} must exceed the excluded neighbourhood t = {} mm (each node ignores the cavity surface within one wall thickness of it)", c.reach_mm, crate::geometry::T_WALL);
+                bail!(
+                    "scenes.contact.reach_mm = {} must exceed the excluded neighbourhood t = {} mm (each node ignores the cavity surface within one wall thickness of it)",
+                    c.reach_mm,
+                    crate::geometry::T_WALL
+                );
             }
         }
         if !(s.ballooning_limit_mm.is_finite() && s.ballooning_limit_mm > crate::geometry::R_TUBE) {

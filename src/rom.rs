@@ -292,7 +292,12 @@ pub fn from_ramps(opts: &SceneOptions, t: &TrainOptions, ramps: &[Ramp], log: &(
     let appended = basis.appended_singular_values.len();
     log(&format!("  POD: {} snapshots of {} unknowns → {} modes ({:?} frame)", snapshots, basis.n, basis.k - appended, basis.frame));
     if t.buckling_modes > 0 {
-        log(&format!("  end modes: {} appended (at most {}; their parts outside the POD basis: {:?})", appended, t.buckling_modes, basis.appended_singular_values.iter().map(|s| (s * 1e3).round() / 1e3).collect::<Vec<_>>()));
+        log(&format!(
+            "  end modes: {} appended (at most {}; their parts outside the POD basis: {:?})",
+            appended,
+            t.buckling_modes,
+            basis.appended_singular_values.iter().map(|s| (s * 1e3).round() / 1e3).collect::<Vec<_>>()
+        ));
     }
     if let Some(pb) = &basis.pressure {
         log(&format!("  pressure POD: {} snapshots of {} coefficients → {} modes", snapshots, pb.psi.len() / pb.kp.max(1), pb.kp));
@@ -468,7 +473,8 @@ pub fn load(dir: &std::path::Path, opts: &SceneOptions) -> Result<(Rom, Manifest
     };
     let refs = take_f64s(&bytes, &mut at, 3 * m.reference_nodes)?;
     let reference = refs.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let basis = Basis { frame: m.frame, n: m.n, k: m.k, reference, v, singular_values: m.report.singular_values.clone(), pressure, appended_singular_values: m.report.buckling_singular_values.clone() };
+    let basis =
+        Basis { frame: m.frame, n: m.n, k: m.k, reference, v, singular_values: m.report.singular_values.clone(), pressure, appended_singular_values: m.report.buckling_singular_values.clone() };
     Ok((Rom::new(basis, m.sample.clone()), m))
 }
 

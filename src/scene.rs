@@ -377,7 +377,8 @@ pub struct WarmStart {
 impl WarmStart {
     /// The positive branch of a scene result (None without two positive states).
     pub fn of(r: &SceneResult) -> Option<WarmStart> {
-        let mut points: Vec<(f64, f64, Vec<f64>)> = r.steps.iter().zip(&r.states).filter(|(s, _)| s.p_kpa > 0.0 && s.p_kpa.is_finite()).map(|(s, q)| (s.p_kpa, s.cavity_volume_mm3, q.clone())).collect();
+        let mut points: Vec<(f64, f64, Vec<f64>)> =
+            r.steps.iter().zip(&r.states).filter(|(s, _)| s.p_kpa > 0.0 && s.p_kpa.is_finite()).map(|(s, q)| (s.p_kpa, s.cavity_volume_mm3, q.clone())).collect();
         points.sort_by(|a, b| a.0.total_cmp(&b.0));
         (points.len() >= 2).then_some(WarmStart { points, fold: r.status == SceneStatus::LimitPoint })
     }
@@ -813,7 +814,10 @@ fn scene_path(
 ) -> ScenePath {
     let points: Vec<ScenePoint> = pts
         .iter()
-        .map(|pt| ScenePoint { record: StepRecord { snapped: pt.kind == PointKind::Snapped, ..sm.step_record(&pt.outputs, loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations) }, q: pt.q.clone() })
+        .map(|pt| ScenePoint {
+            record: StepRecord { snapped: pt.kind == PointKind::Snapped, ..sm.step_record(&pt.outputs, loads(pt.lam).pressure * 1e3, pt.min_det, pt.newton_iterations) },
+            q: pt.q.clone(),
+        })
         .collect();
     let p_last = points.last().map(|p| p.record.p_kpa).unwrap_or(p0_kpa);
     let limit = opts.ballooning_limit_mm;

@@ -818,10 +818,34 @@ pub fn add_vacuum_side(row: &mut Row, design: &Design, range: RangePolicy, v: &V
                 results.push(r);
             }
             Ok(Err(e)) => {
-                vs.scenes.insert(kind.name().into(), VacuumScene { status: SceneStatus::ModelError, cause: e.to_string().replace('\n', " "), p_reached_kpa: None, steps: 0, newton_iterations: 0, snaps_kpa: vec![], min_contact_distance_mm: None, wall_time_s: 0.0 });
+                vs.scenes.insert(
+                    kind.name().into(),
+                    VacuumScene {
+                        status: SceneStatus::ModelError,
+                        cause: e.to_string().replace('\n', " "),
+                        p_reached_kpa: None,
+                        steps: 0,
+                        newton_iterations: 0,
+                        snaps_kpa: vec![],
+                        min_contact_distance_mm: None,
+                        wall_time_s: 0.0,
+                    },
+                );
             }
             Err(_) => {
-                vs.scenes.insert(kind.name().into(), VacuumScene { status: SceneStatus::ModelError, cause: "the vacuum ramp panicked".into(), p_reached_kpa: None, steps: 0, newton_iterations: 0, snaps_kpa: vec![], min_contact_distance_mm: None, wall_time_s: 0.0 });
+                vs.scenes.insert(
+                    kind.name().into(),
+                    VacuumScene {
+                        status: SceneStatus::ModelError,
+                        cause: "the vacuum ramp panicked".into(),
+                        p_reached_kpa: None,
+                        steps: 0,
+                        newton_iterations: 0,
+                        snaps_kpa: vec![],
+                        min_contact_distance_mm: None,
+                        wall_time_s: 0.0,
+                    },
+                );
             }
         }
     }
@@ -1638,7 +1662,18 @@ mod tests {
     }
 
     fn rec(p: f64, theta: f64, tau: f64, radius: f64) -> StepRecord {
-        StepRecord { p_kpa: p, theta_deg: theta, axial_mm: 0.0, tau_nm: tau, max_radius_mm: radius, cavity_volume_mm3: 1.0, min_det_f: 1.0, newton_iterations: 1, contact_distance_mm: None, snapped: false }
+        StepRecord {
+            p_kpa: p,
+            theta_deg: theta,
+            axial_mm: 0.0,
+            tau_nm: tau,
+            max_radius_mm: radius,
+            cavity_volume_mm3: 1.0,
+            min_det_f: 1.0,
+            newton_iterations: 1,
+            contact_distance_mm: None,
+            snapped: false,
+        }
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {

@@ -115,7 +115,8 @@ fn adjoint_at_a_contact_state_matches_central_differences() {
             let fd = c.fd_richardson.or(*c.fd.last().unwrap()).unwrap_or(f64::NAN);
             c.rel_error <= 1e-5 || (c.adjoint - fd).abs() * range <= 1e-9 * sg.values[f].abs()
         };
-        let detail: Vec<String> = rep.iter().flat_map(|(f, m)| m.iter().filter(|(_, c)| !ok(f, c)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error))).collect();
+        let detail: Vec<String> =
+            rep.iter().flat_map(|(f, m)| m.iter().filter(|(_, c)| !ok(f, c)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error))).collect();
         assert!(detail.is_empty(), "{kind:?}: max rel error {:e}: {detail:?}", max_rel_error(&rep));
         // and the contact-dominated outputs themselves pass the relative test
         for f in ["theta_deg", "tau_Nm", "cavity_volume_mm3"] {
@@ -186,11 +187,23 @@ fn end_plates_bound_the_cavity_wall() {
         let ring = &sm.model.mesh.node_sets[ring];
         assert!(!pl.slaves.is_empty());
         assert!(pl.slaves.iter().all(|(n, w)| !ring.contains(n) && *w > 0.0 && sm.cavity_nodes.contains(n)));
-        let gaps: Vec<f64> = pl.slaves.iter().map(|&(n, _)| (0..3).map(|k| pl.normal[k] * (x(n)[k] - match pl.point {
-            Vertex::Fixed(p) => p[k],
-            Vertex::Node(r) => x(r)[k],
-            _ => unreachable!(),
-        })).sum()).collect();
+        let gaps: Vec<f64> = pl
+            .slaves
+            .iter()
+            .map(|&(n, _)| {
+                (0..3)
+                    .map(|k| {
+                        pl.normal[k]
+                            * (x(n)[k]
+                                - match pl.point {
+                                    Vertex::Fixed(p) => p[k],
+                                    Vertex::Node(r) => x(r)[k],
+                                    _ => unreachable!(),
+                                })
+                    })
+                    .sum()
+            })
+            .collect();
         assert!(gaps.iter().all(|&d| d > ContactOptions::default().dhat_mm), "{:?}", gaps.iter().cloned().fold(f64::INFINITY, f64::min));
     }
     assert!(matches!(c.planes[1].point, Vertex::Node(n) if sm.top_nodes.contains(&n)));

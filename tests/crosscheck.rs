@@ -116,13 +116,7 @@ fn vacuum_contact_blocked_torque_matches_calculix() {
     require_ccx();
     let d = out_dir("crosscheck-vacuum-contact");
     let problem = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("problems").join("vacuum-contact.toml");
-    let out = bin()
-        .arg("crosscheck")
-        .arg(problem)
-        .args(["--scene", "blocked", "--twistopt-element", "matched", "--set", "load.pressures_kPa=[-10,-20,-35,-40]", "--out"])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let out = bin().arg("crosscheck").arg(problem).args(["--scene", "blocked", "--twistopt-element", "matched", "--set", "load.pressures_kPa=[-10,-20,-35,-40]", "--out"]).arg(&d).output().unwrap();
     assert!(out.status.success(), "crosscheck failed: {}", String::from_utf8_lossy(&out.stderr));
     let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("crosscheck.json")).unwrap()).unwrap();
     let s = &r["scenes"]["blocked"];
@@ -137,9 +131,7 @@ fn vacuum_contact_blocked_torque_matches_calculix() {
     assert!(s["twistopt"]["min_contact_distance_mm"].as_f64().unwrap() > 0.0);
     let rows = s["comparison"].as_array().unwrap();
     assert_eq!(rows.len(), 4);
-    let contact_at = |p: f64| {
-        s["twistopt"]["steps"].as_array().unwrap().iter().find(|st| st["p_kPa"].as_f64() == Some(p)).and_then(|st| st["contact_distance_mm"].as_f64()).unwrap()
-    };
+    let contact_at = |p: f64| s["twistopt"]["steps"].as_array().unwrap().iter().find(|st| st["p_kPa"].as_f64() == Some(p)).and_then(|st| st["contact_distance_mm"].as_f64()).unwrap();
     for row in rows {
         let p = row["p_kPa"].as_f64().unwrap();
         let rel = row["rel_diff"]["tau"].as_f64().unwrap();

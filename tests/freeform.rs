@@ -32,7 +32,16 @@ fn freeform_space_has_at_least_twenty_parameters_and_contains_table_one() {
         assert!(s.get(n).is_some(), "{n}");
     }
     // zero modes = the spec: a design vector with the three values and zeros
-    let x: Vec<f64> = s.params.iter().map(|p| match p.name.as_str() { "r_mm" => 12.0, "l_mm" => 15.0, "alpha_deg" => 200.0, _ => 0.0 }).collect();
+    let x: Vec<f64> = s
+        .params
+        .iter()
+        .map(|p| match p.name.as_str() {
+            "r_mm" => 12.0,
+            "l_mm" => 15.0,
+            "alpha_deg" => 200.0,
+            _ => 0.0,
+        })
+        .collect();
     let d = s.design_from_vec(&x).unwrap();
     assert_eq!(d.parameter_names().len(), s.len());
     assert!(ActuatorGeometry::new(&d, RangePolicy::TableI).unwrap().act.is_freeform());
@@ -171,7 +180,8 @@ fn adjoint_gradients_of_freeform_parameters_match_central_differences() {
         }
         let rep = fd_check(&g, &o, kind, &sg, &[1e-4, 1e-5]);
         let worst = max_rel_error(&rep);
-        let detail: Vec<String> = rep.iter().flat_map(|(f, m)| m.iter().filter(|(_, c)| !(c.rel_error <= 1e-5)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error))).collect();
+        let detail: Vec<String> =
+            rep.iter().flat_map(|(f, m)| m.iter().filter(|(_, c)| !(c.rel_error <= 1e-5)).map(move |(p, c)| format!("{f}/{p}: adjoint {} fd {:?} rel {}", c.adjoint, c.fd, c.rel_error))).collect();
         assert!(worst <= 1e-5, "{kind:?}: max rel error {worst:e}: {detail:?}");
     }
 }

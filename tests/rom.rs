@@ -718,9 +718,7 @@ fn reduced_sensitivities_equal_finite_differences_of_reduced_equilibria() {
 fn pressure_basis_holds_the_element_constant_field() {
     use twistopt_solver::rom::PressureBasis;
     let (np, ne) = (4, 6);
-    let snaps: Vec<Vec<f64>> = (0..5)
-        .map(|s| (0..ne * np).map(|i| ((i / np) as f64 - 2.5) * ((1 + s) as f64 * (1 + i) as f64).sin()).collect())
-        .collect();
+    let snaps: Vec<Vec<f64>> = (0..5).map(|s| (0..ne * np).map(|i| ((i / np) as f64 - 2.5) * ((1 + s) as f64 * (1 + i) as f64).sin()).collect()).collect();
     let pb = PressureBasis::pod(&snaps, np, Truncation::Modes(3)).unwrap();
     assert_eq!(pb.kp, 3);
     let col = |j: usize| -> Vec<f64> { (0..ne * np).map(|i| pb.psi[i * pb.kp + j]).collect() };
@@ -752,7 +750,8 @@ fn pure_twist_rom_trains_and_reproduces_a_training_design() {
     let _ = std::fs::remove_dir_all(&dir);
     let romdir = dir.join("rom");
     let common = ["--set", "fidelity.preset=\"coarse\"", "--set", "load.p_max_kPa=30"];
-    let out = bin().args(["rom", "train", "problems/pure-twist.toml"]).args(common).args(["--designs", "3", "--modes", "24", "--pressure-modes", "5", "--points", "--out"]).arg(&romdir).output().unwrap();
+    let out =
+        bin().args(["rom", "train", "problems/pure-twist.toml"]).args(common).args(["--designs", "3", "--modes", "24", "--pressure-modes", "5", "--points", "--out"]).arg(&romdir).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(romdir.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(m["options"]["scenes"], serde_json::json!(["pure-twist", "pure-twist-blocked"]));

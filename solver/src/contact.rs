@@ -637,7 +637,12 @@ impl Contact {
             if !(gap > 0.0) {
                 if crate::continuation::trace_enabled() {
                     let near = act.iter().map(|(_, tc)| point_triangle(p, *tc).0).fold(f64::INFINITY, f64::min);
-                    eprintln!("[contact] penetration: node {} at {p:?} gap {gap:.3e} weights {sb:.3} over {} triangles, nearest {near:.3e}; {:?}", s.node, act.len(), act.iter().map(|(t, _)| self.triangles[*t]).collect::<Vec<_>>());
+                    eprintln!(
+                        "[contact] penetration: node {} at {p:?} gap {gap:.3e} weights {sb:.3} over {} triangles, nearest {near:.3e}; {:?}",
+                        s.node,
+                        act.len(),
+                        act.iter().map(|(t, _)| self.triangles[*t]).collect::<Vec<_>>()
+                    );
                 }
                 return Err(Penetration { node: s.node });
             }
@@ -1132,10 +1137,7 @@ mod tests {
         let c = Contact {
             barrier: Barrier { dhat: 0.01, kappa: 2.0 },
             blend: 0.05,
-            triangles: vec![
-                [Vertex::Node(0), Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Node(2)],
-                [Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Fixed([2.0, 2.0, 0.0]), Vertex::Node(2)],
-            ],
+            triangles: vec![[Vertex::Node(0), Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Node(2)], [Vertex::Rotated { node: 4, angle: 0.3 }, Vertex::Fixed([2.0, 2.0, 0.0]), Vertex::Node(2)]],
             slaves: vec![Slave { node: 3, weight: 0.7, targets: vec![0, 1] }],
             faces: Vec::new(),
             axle: None,
@@ -1219,22 +1221,13 @@ mod tests {
         assert!(c.terms(&|_| [0.03, 0.5, -0.001], false).is_err());
     }
 
-
     /// The axle's term: the force is the energy's gradient and the Hessian the force's Jacobian
     /// (central differences), nodes beyond d̂ have none, a node inside is a penetration, and a
     /// step towards the axis is cut before the node reaches the axle.
     #[test]
     fn axle_term_derivatives_and_step_limit() {
         let barrier = Barrier { dhat: 0.1, kappa: 2.0 };
-        let c = Contact {
-            barrier,
-            blend: 0.01,
-            triangles: Vec::new(),
-            slaves: Vec::new(),
-            faces: Vec::new(),
-            axle: Some(Axle { radius: 2.0, slaves: vec![(0, 0.7), (1, 0.3)] }),
-            planes: Vec::new(),
-        };
+        let c = Contact { barrier, blend: 0.01, triangles: Vec::new(), slaves: Vec::new(), faces: Vec::new(), axle: Some(Axle { radius: 2.0, slaves: vec![(0, 0.7), (1, 0.3)] }), planes: Vec::new() };
         c.validate(2).unwrap();
         let pos: [[f64; 3]; 2] = [[1.5, 1.33, 4.0], [5.0, 0.0, 1.0]];
         let gap0 = pos[0][0].hypot(pos[0][1]) - 2.0;

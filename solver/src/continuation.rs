@@ -1381,7 +1381,12 @@ pub fn relax<M: PathModel>(m: &M, q0: &[f64], lam: f64, o: &SnapOptions) -> Resu
             step *= 0.25;
         }
         if trace {
-            eprintln!("[relax] it {its} |r| {rn:.3e} scale {:.3e} σ {sigma:.1e} g0 {g0:.3e} |Δq|∞ {:.3e} step {}", ev.scale, dq.iter().fold(0.0f64, |a, v| a.max(v.abs())), if accepted.is_some() { step } else { 0.0 });
+            eprintln!(
+                "[relax] it {its} |r| {rn:.3e} scale {:.3e} σ {sigma:.1e} g0 {g0:.3e} |Δq|∞ {:.3e} step {}",
+                ev.scale,
+                dq.iter().fold(0.0f64, |a, v| a.max(v.abs())),
+                if accepted.is_some() { step } else { 0.0 }
+            );
         }
         if let Some(qt) = accepted {
             q = qt;
@@ -1534,7 +1539,16 @@ pub fn follow_snapping<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64,
                     }
                     return (PathResult { points, end: PathEnd::Stopped(i), stats, last: None, control: Control::Load }, snaps);
                 }
-                points.push(PathPoint { lam: sol.lam, q: sol.q.clone(), control: sol.ev.control.as_ref().map(|c| c.0), outputs: out, min_det: sol.ev.min_det, stable: true, kind: PointKind::Snapped, newton_iterations: sol.iterations });
+                points.push(PathPoint {
+                    lam: sol.lam,
+                    q: sol.q.clone(),
+                    control: sol.ev.control.as_ref().map(|c| c.0),
+                    outputs: out,
+                    min_det: sol.ev.min_det,
+                    stable: true,
+                    kind: PointKind::Snapped,
+                    newton_iterations: sol.iterations,
+                });
                 snaps.push(Snap { lam: sol.lam, point: points.len() - 1, iterations: sol.iterations, jump });
                 if trace_enabled() {
                     eprintln!("[snap] at λ {:.7}: {} iterations, jump {jump:.3e}", sol.lam, sol.iterations);
@@ -2029,5 +2043,4 @@ mod tests {
         let sol = relax(&m, &[2.0, 1e-9], 2.0, &SnapOptions::default()).unwrap();
         assert!(sol.stable && (sol.q[1] - (2.0 - LC).sqrt()).abs() < 1e-8, "{:?}", sol.q);
     }
-
 }

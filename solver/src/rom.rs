@@ -343,10 +343,19 @@ impl Basis {
         for i in 0..self.n {
             v[i * k..(i + 1) * k].copy_from_slice(&self.row(i)[..k]);
         }
-        Basis { frame: self.frame, n: self.n, k, reference: self.reference.clone(), v, singular_values: self.singular_values.clone(), pressure: self.pressure.clone(), appended_singular_values: {
-            let pod = self.k - self.appended_singular_values.len();
-            self.appended_singular_values[..k.saturating_sub(pod)].to_vec()
-        } }
+        Basis {
+            frame: self.frame,
+            n: self.n,
+            k,
+            reference: self.reference.clone(),
+            v,
+            singular_values: self.singular_values.clone(),
+            pressure: self.pressure.clone(),
+            appended_singular_values: {
+                let pod = self.k - self.appended_singular_values.len();
+                self.appended_singular_values[..k.saturating_sub(pod)].to_vec()
+            },
+        }
     }
 }
 

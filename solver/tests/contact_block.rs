@@ -178,10 +178,15 @@ fn merge(a: Mesh, b: Mesh) -> Mesh {
         face_sets.insert(format!("a_{k}"), v);
     }
     for (k, v) in b.face_sets {
-        face_sets.insert(format!("b_{k}"), v.into_iter().map(|mut f| {
-            f.element += ea;
-            f
-        }).collect());
+        face_sets.insert(
+            format!("b_{k}"),
+            v.into_iter()
+                .map(|mut f| {
+                    f.element += ea;
+                    f
+                })
+                .collect(),
+        );
     }
     let mut nodes = a.nodes;
     nodes.extend(b.nodes);
@@ -295,7 +300,6 @@ fn tangent_matches_differences(model: &Model, q: &[f64], loads: &Loads) {
     let worst = common::tangent_fd_error(model, q, loads, 1e-8);
     assert!(worst.0 < 1e-6, "tangent vs FD: worst relative error {:e} at ({}, {})", worst.0, worst.1, worst.2);
 }
-
 
 /// A block (rollers x = 0, y = 0) whose top face is a rigid cap held at z = −push, pressed on the
 /// rigid plane z = −g0, on the mesh moved by `dx0 × h`.

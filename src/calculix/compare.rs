@@ -41,13 +41,7 @@ pub const ROTATION_FACTORS: [f64; 2] = [1.0, 0.98];
 /// kept). `base` is the deck without contact (its mesh is the full 360° ccx mesh).
 pub fn vacuum_patches(tw: &SceneResult, base: &super::Deck, sector: bool, delta_mm: f64) -> Result<Vec<PatchPair>> {
     let fields = tw.fields.as_ref().ok_or_else(|| anyhow::anyhow!("twistopt kept no fields to take contact pairs from"))?;
-    let (k, _) = tw
-        .steps
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| s.p_kpa < 0.0)
-        .min_by(|a, b| a.1.p_kpa.total_cmp(&b.1.p_kpa))
-        .ok_or_else(|| anyhow::anyhow!("twistopt reached no negative pressure"))?;
+    let (k, _) = tw.steps.iter().enumerate().filter(|(_, s)| s.p_kpa < 0.0).min_by(|a, b| a.1.p_kpa.total_cmp(&b.1.p_kpa)).ok_or_else(|| anyhow::anyhow!("twistopt reached no negative pressure"))?;
     let u = fields.displacements.get(k).ok_or_else(|| anyhow::anyhow!("no displacement field for step {k}"))?;
     let x = map_deformed(&base.mesh, &fields.mesh, u, if sector { 3 } else { 1 })?;
     let faces = base.mesh.face_sets.get("cavity").ok_or_else(|| anyhow::anyhow!("the deck's mesh has no cavity faces"))?;
@@ -198,15 +192,24 @@ pub fn write_deformed(tw: &SceneResult, base: &super::Deck, sector: bool, path: 
 /// at those roots checks that the torque left there is small; the states reported are the last
 /// run's with θ the root.
 #[allow(clippy::too_many_arguments)]
-pub fn vacuum_contact_runs(tw: &SceneResult, base: &super::Deck, v: &Validated, scene: SceneKind, targets: &[f64], deck_opts: &DeckOptions, sector: bool, ccx: &str, dir: &Path, threads: usize) -> Result<(CcxRun, Value)> {
+pub fn vacuum_contact_runs(
+    tw: &SceneResult,
+    base: &super::Deck,
+    v: &Validated,
+    scene: SceneKind,
+    targets: &[f64],
+    deck_opts: &DeckOptions,
+    sector: bool,
+    ccx: &str,
+    dir: &Path,
+    threads: usize,
+) -> Result<(CcxRun, Value)> {
     write_deformed(tw, base, sector, &dir.join("twistopt-deformed.json"))?;
     let pairs = vacuum_patches(tw, base, sector, deck_opts.contact_patch_mm)?;
     let gaps = twistopt_surface_gaps(tw, v, &pairs, sector)?;
     let mut extras = DeckExtras { contact: pairs.clone(), contact_slope_mpa_per_mm: deck_opts.contact_slope_mpa_per_mm, rotation_deg: None };
-    let pairs_json = json!(pairs
-        .iter()
-        .map(|p| json!({"slave_faces": p.slave.len(), "master_faces": p.master.len(), "min_distance_mm": p.min_distance_mm, "close_nodes": p.close_nodes}))
-        .collect::<Vec<_>>());
+    let pairs_json =
+        json!(pairs.iter().map(|p| json!({"slave_faces": p.slave.len(), "master_faces": p.master.len(), "min_distance_mm": p.min_distance_mm, "close_nodes": p.close_nodes})).collect::<Vec<_>>());
     if !scene.rotation_free() {
         let deck = build_deck_with(&v.geometry, &v.mesh, &v.material, scene, targets, deck_opts, &extras)?;
         let run = run_deck(ccx, &deck, dir, scene.name(), threads)?;

@@ -164,11 +164,7 @@ pub fn map_deformed(full: &Mesh, part: &Mesh, u: &[[f64; 3]], copies: usize) -> 
 /// outward normal). Returns (node gap, signed surface gap) in mm.
 pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]], m: usize) -> (f64, f64) {
     let m = m.max(2);
-    let node_tris: Vec<[[f64; 3]; 3]> = master
-        .iter()
-        .flat_map(|&f| face_triangles(mesh, f))
-        .map(|t| [0, 1, 2].map(|i| x[t[i].node().unwrap_or(0)]))
-        .collect();
+    let node_tris: Vec<[[f64; 3]; 3]> = master.iter().flat_map(|&f| face_triangles(mesh, f)).map(|t| [0, 1, 2].map(|i| x[t[i].node().unwrap_or(0)])).collect();
     let mut node_gap = f64::INFINITY;
     let slave_nodes: BTreeSet<usize> = slave.iter().flat_map(|&f| mesh.face_nodes(f)).collect();
     for &n in &slave_nodes {

@@ -318,7 +318,8 @@ pub fn build_deck_with(geom: &ActuatorGeometry, mesh_spec: &MeshSpec, material: 
     let _ = writeln!(w, "*NODE, NSET={SET_ROT}\n{rot_node}, 0.0, 0.0, {L_TUBE:.12e}");
     let _ = writeln!(w, "*NSET, NSET={SET_PROBE}\n{}", probe + 1);
     let top_nodes: std::collections::HashSet<usize> = mesh.node_sets.get("top").map(|v| v.iter().copied().collect()).unwrap_or_default();
-    let cap_faces: Vec<twistopt_solver::mesh::Face> = mesh.face_sets.get("cavity").map(|fs| fs.iter().copied().filter(|f| mesh.face_nodes(*f).iter().any(|n| top_nodes.contains(n))).collect()).unwrap_or_default();
+    let cap_faces: Vec<twistopt_solver::mesh::Face> =
+        mesh.face_sets.get("cavity").map(|fs| fs.iter().copied().filter(|f| mesh.face_nodes(*f).iter().any(|n| top_nodes.contains(n))).collect()).unwrap_or_default();
     let mut cap_face_nodes: Vec<usize> = cap_faces.iter().flat_map(|f| mesh.face_nodes(*f)).collect();
     cap_face_nodes.sort();
     cap_face_nodes.dedup();

@@ -170,7 +170,15 @@ pub fn generate(args: &GeometryArgs) -> Result<Value> {
     write_vtu(&dir.join("mesh.vtu"), &am.mesh, &point_data, &[DataArray::new("min_scaled_jacobian", 1, &sj)])?;
     write_stl_binary(&dir.join("outer.stl"), &outer, "outer")?;
     write_stl_binary(&dir.join("cavity.stl"), &cavity, "cavity")?;
-    let mut heading = format!("twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}", design.r_mm(), design.l_mm(), design.alpha_deg(), spec.size_string(), spec.kind, if spec.sector { " sector" } else { "" });
+    let mut heading = format!(
+        "twistopt actuator r_mm={} l_mm={} alpha_deg={} mesh={} {:?}{}",
+        design.r_mm(),
+        design.l_mm(),
+        design.alpha_deg(),
+        spec.size_string(),
+        spec.kind,
+        if spec.sector { " sector" } else { "" }
+    );
     for (k, v) in &design.values {
         if crate::geometry::freeform::parse_param(k).is_some() {
             heading.push_str(&format!(" {k}={v}"));

@@ -8,7 +8,7 @@ use clap::Args;
 use serde_json::{json, Value};
 
 use crate::evaluate::write_json_atomic;
-use crate::optimise::{all_runs, build_problem, run_name, problem_starting_points, Objective, RunResult, FEAS_TOL};
+use crate::optimise::{all_runs, build_problem, problem_starting_points, run_name, Objective, RunResult, FEAS_TOL};
 use crate::plot::{line_plot, LinePlot, Series};
 use crate::problem::Problem;
 

@@ -404,7 +404,11 @@ fn enrich(
             rec["indicator"]["max"],
             rec["indicator"]["p90"],
             rec["indicator"]["median"],
-            if picks.is_empty() { format!("none (every indicator ≤ {})", eo.target) } else { picks.iter().map(|&i| format!("candidate {i} ({})", crate::rom::label(&candidates[i]))).collect::<Vec<_>>().join(", ") }
+            if picks.is_empty() {
+                format!("none (every indicator ≤ {})", eo.target)
+            } else {
+                picks.iter().map(|&i| format!("candidate {i} ({})", crate::rom::label(&candidates[i]))).collect::<Vec<_>>().join(", ")
+            }
         );
         rounds.push(rec);
         save(&rounds, None)?;

@@ -509,7 +509,8 @@ impl<D: Scalar> Actuator<D> {
     pub fn lift(&self) -> Actuator<Dual<D>> {
         let z = D::zero();
         let lift = |x: D| Dual::new(x, z);
-        Actuator::with_variant(lift(self.section.r), lift(self.profile.l), lift(self.alpha), self.profile.gamma.map(lift), self.variant).with_freeform(self.twist_modes.map(|a| a.map(lift)), self.profile.bumps.map(|b| b.map(lift)))
+        Actuator::with_variant(lift(self.section.r), lift(self.profile.l), lift(self.alpha), self.profile.gamma.map(lift), self.variant)
+            .with_freeform(self.twist_modes.map(|a| a.map(lift)), self.profile.bumps.map(|b| b.map(lift)))
     }
 
     /// Whether the wall must be trimmed by the end planes: the offset direction is not horizontal

@@ -938,7 +938,12 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
     }
     let dist = |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
     // each node's own ring: the farthest vertex of a triangle it belongs to (a coarse mesh's
-    // ring can be wider than `exclude`, and a triangle sharing the node is at distance 0)
+    // ring can be wider than `exclude`, and a triangle sharing the node is at distance 0). The
+    // exclusion radius is measured along the surface (geodesic): triangles across a narrow
+    // cavity are near in space but far along the wall. (Measured in space, on the coarse example
+    // the radius, 3.6–4.2 mm from the ring, excluded the facing wall 3.2–3.9 mm across the lobe,
+    // and the walls overlapped there by up to 0.011 mm between the nodes with no term between
+    // them.)
     let mut ring = vec![0.0f64; x0.len()];
     for t in &base {
         for a in t {
@@ -949,6 +954,7 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
             }
         }
     }
+    let geo = SurfaceGraph::new(&triangles, copies, x0);
     let weights = nodal_areas(mesh, faces);
     let slaves = weights
         .into_iter()
@@ -969,9 +975,12 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
             cand.sort_unstable();
             cand.dedup();
             let excl = exclude.max(1.01 * ring[node]);
+            // near in space and along the surface's edges (a path of edges is up to √2 longer
+            // than the surface's geodesic on a grid of quads split once)
+            let near = geo.within(node, std::f64::consts::SQRT_2 * excl);
             cand.retain(|&t| {
-                let tx = &tri_x[t];
-                tx.iter().all(|v| dist(*v, p) > excl) && point_triangle(p, *tx).0 <= reach
+                let excluded = triangles[t].iter().zip(&tri_x[t]).any(|(v, x)| dist(*x, p) <= excl && geo.id(v).is_some_and(|i| near.contains(&i)));
+                !excluded && point_triangle(p, tri_x[t]).0 <= reach
             });
             Slave { node, weight, targets: cand }
         })
@@ -979,6 +988,104 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         .collect();
     let blend = Contact::default_blend(&triangles, x0);
     Contact { barrier, blend, triangles, slaves, faces: faces.to_vec(), axle: None, planes: Vec::new() }
+}
+
+/// The node graph of a triangulated surface and its rotated copies, for distances along the
+/// surface: a vertex is a node (id n) or its copy rotated by `copies[c]` (id (c + 1)·N + n); edges are the triangles' edges (reference lengths), and
+/// vertices that coincide (a cyclic sector's cut, seen from both copies) are joined.
+struct SurfaceGraph {
+    n: usize,
+    copies: Vec<f64>,
+    adj: std::collections::HashMap<usize, Vec<(usize, f64)>>,
+}
+
+impl SurfaceGraph {
+    fn new(triangles: &[Triangle], copies: &[f64], x0: &[[f64; 3]]) -> Self {
+        let mut g = SurfaceGraph { n: x0.len(), copies: copies.to_vec(), adj: Default::default() };
+        let pos = |v: &Vertex| v.position(&|n| x0[n]);
+        let mut scale = 0.0f64;
+        for t in triangles {
+            for a in 0..3 {
+                let (pa, pb) = (pos(&t[a]), pos(&t[(a + 1) % 3]));
+                let l = ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2)).sqrt();
+                scale = scale.max(l);
+                if let (Some(i), Some(j)) = (g.id(&t[a]), g.id(&t[(a + 1) % 3])) {
+                    g.adj.entry(i).or_default().push((j, l));
+                    g.adj.entry(j).or_default().push((i, l));
+                }
+            }
+        }
+        // coincident vertices (within 1e-9 of the longest edge): a hash of positions on a grid of
+        // that size, each point checked against its cell's and the neighbouring cells' points
+        let tol = 1e-9 * scale.max(1e-300);
+        let mut at: std::collections::HashMap<[i64; 3], Vec<usize>> = Default::default();
+        let mut ids: Vec<usize> = g.adj.keys().copied().collect();
+        ids.sort_unstable();
+        let cell = |p: [f64; 3]| p.map(|c| (c / tol).floor() as i64);
+        for &i in &ids {
+            at.entry(cell(g.position(i, x0))).or_default().push(i);
+        }
+        let mut joins = Vec::new();
+        for &i in &ids {
+            let p = g.position(i, x0);
+            let k = cell(p);
+            for d in 0..27i64 {
+                let key = [k[0] + d % 3 - 1, k[1] + (d / 3) % 3 - 1, k[2] + d / 9 - 1];
+                for &j in at.get(&key).map(|v| v.as_slice()).unwrap_or(&[]) {
+                    let q = g.position(j, x0);
+                    if j != i && (p[0] - q[0]).abs().max((p[1] - q[1]).abs()).max((p[2] - q[2]).abs()) <= tol {
+                        joins.push((i, j));
+                    }
+                }
+            }
+        }
+        for (i, j) in joins {
+            g.adj.entry(i).or_default().push((j, 0.0));
+        }
+        g
+    }
+
+    /// The graph vertex of a triangle vertex (None for a fixed point).
+    fn id(&self, v: &Vertex) -> Option<usize> {
+        match *v {
+            Vertex::Node(n) => Some(n),
+            Vertex::Rotated { node, angle } => self.copies.iter().position(|&a| a == angle).map(|c| (c + 1) * self.n + node),
+            Vertex::Fixed(_) => None,
+        }
+    }
+
+    fn position(&self, i: usize, x0: &[[f64; 3]]) -> [f64; 3] {
+        let (c, n) = (i / self.n, i % self.n);
+        if c == 0 {
+            x0[n]
+        } else {
+            apply(&rot_z(self.copies[c - 1]), x0[n])
+        }
+    }
+
+    /// The vertices within distance `r` of node `node` (copy 0) along the surface (Dijkstra).
+    fn within(&self, node: usize, r: f64) -> std::collections::HashSet<usize> {
+        use std::cmp::Reverse;
+        let mut best: std::collections::HashMap<usize, f64> = Default::default();
+        let mut heap = std::collections::BinaryHeap::new();
+        best.insert(node, 0.0);
+        heap.push((Reverse(0.0f64.to_bits()), node));
+        let mut done = std::collections::HashSet::new();
+        while let Some((Reverse(db), i)) = heap.pop() {
+            let d = f64::from_bits(db);
+            if d > r || !done.insert(i) {
+                continue;
+            }
+            for &(j, l) in self.adj.get(&i).map(|v| v.as_slice()).unwrap_or(&[]) {
+                let dj = d + l;
+                if dj <= r && best.get(&j).is_none_or(|&b| dj < b) {
+                    best.insert(j, dj);
+                    heap.push((Reverse(dj.to_bits()), j));
+                }
+            }
+        }
+        done
+    }
 }
 
 /// The consistent reference areas ∫ Nᵢ dA of the nodes of a set of faces (summed over faces).
@@ -1219,6 +1326,25 @@ mod tests {
         assert!(c.min_gap(&beside).is_infinite() && c.min_distance(&beside) > 0.0);
         // the same depth inside the edge's band but over the face (weights sum to 1): refused
         assert!(c.terms(&|_| [0.03, 0.5, -0.001], false).is_err());
+    }
+
+    /// The exclusion radius is measured along the surface: of a slab's two faces (1 apart, not
+    /// joined), a node of the top face has the bottom face's triangles right below it as
+    /// candidates with an exclusion radius of 1.5, but none of its own face's within 1.5 of it.
+    #[test]
+    fn self_contact_excludes_by_distance_along_the_surface() {
+        use crate::mesh::ElementKind;
+        let m = crate::meshgen::boxed(ElementKind::Hex8, [4, 4, 1], [4.0, 4.0, 1.0]);
+        let faces: Vec<Face> = m.face_sets["zmin"].iter().chain(&m.face_sets["zmax"]).copied().collect();
+        let c = self_contact(&m, &faces, &[0.0], 1.5, 3.0, Barrier { dhat: 0.1, kappa: 1.0 });
+        let top = (0..m.nodes.len()).find(|&n| m.nodes[n] == [2.0, 2.0, 1.0]).unwrap();
+        let s = c.slaves.iter().find(|s| s.node == top).unwrap();
+        let tri = |t: usize| c.triangles[t].map(|v| v.position(&|n| m.nodes[n]));
+        assert!(s.targets.iter().any(|&t| tri(t).iter().all(|p| p[2] == 0.0) && tri(t).iter().any(|p| (p[0] - 2.0).abs() + (p[1] - 2.0).abs() <= 1.0)), "no triangle below");
+        for &t in &s.targets {
+            let x = tri(t);
+            assert!(x.iter().all(|p| p[2] == 0.0 || ((p[0] - 2.0).powi(2) + (p[1] - 2.0).powi(2)).sqrt() > 1.5), "own face's triangle {x:?} within 1.5");
+        }
     }
 
     /// The axle's term: the force is the energy's gradient and the Hessian the force's Jacobian

@@ -906,10 +906,11 @@ fn blend_terms(p: [f64; 3], t: [[f64; 3]; 3], eps: f64, dhat: f64) -> (f64, f64)
 /// The self-contact of a surface (e.g. a cavity wall): every node of `faces` is a slave
 /// against the surface's triangles ([`face_triangles`]) and their copies rotated about z by each
 /// of `copies` (a cyclic sector's neighbours; 0 = the modelled part itself). A slave's candidate
-/// triangles are those within `reach` of it in the reference configuration, without a vertex
-/// within `exclude` of it, nor within its own ring of triangles (its own neighbourhood on the
-/// surface, which it cannot touch). A uniform
-/// grid finds them. The blend width is [`Contact::default_blend`].
+/// triangles are those within `reach` of it in the reference configuration, without a vertex in
+/// its own neighbourhood on the surface, which it cannot touch: its own ring of triangles and the
+/// next one, and whatever lies within `exclude` of it both in space and along the surface (so
+/// that a wall facing it across a narrow cavity is not excluded). A uniform grid finds them. The
+/// blend width is [`Contact::default_blend`].
 pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, reach: f64, barrier: Barrier) -> Contact {
     let base: Vec<Triangle> = faces.iter().flat_map(|&f| face_triangles(mesh, f)).collect();
     let mut triangles = Vec::with_capacity(base.len() * copies.len());
@@ -937,23 +938,13 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
         }
     }
     let dist = |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-    // each node's own ring: the farthest vertex of a triangle it belongs to (a coarse mesh's
-    // ring can be wider than `exclude`, and a triangle sharing the node is at distance 0). The
-    // exclusion radius is measured along the surface (geodesic): triangles across a narrow
-    // cavity are near in space but far along the wall. (Measured in space, on the coarse example
-    // the radius, 3.6–4.2 mm from the ring, excluded the facing wall 3.2–3.9 mm across the lobe,
-    // and the walls overlapped there by up to 0.011 mm between the nodes with no term between
-    // them.)
-    let mut ring = vec![0.0f64; x0.len()];
-    for t in &base {
-        for a in t {
-            if let Vertex::Node(n) = a {
-                for b in t {
-                    ring[*n] = ring[*n].max(dist(x0[*n], pos(b)));
-                }
-            }
-        }
-    }
+    // A node's excluded neighbourhood (the surface it cannot touch): its own ring of triangles and
+    // the next ring (topologically: a coarse mesh's ring is wider than `exclude`), and the
+    // triangles with a vertex within `exclude` both in space and along the surface's edges.
+    // Measured only in space (the farthest vertex of the own ring, or `exclude`), it excluded the
+    // facing wall across a narrow lobe: 3.2–3.9 mm across on the coarse example (radius 3.6–4.2
+    // mm from the ring), 2.6 mm on 24x8x2, where the quadratic walls then overlapped by up to
+    // 0.011 and 0.006 mm between the nodes with no contact term between them; now < 0.001 mm.
     let geo = SurfaceGraph::new(&triangles, copies, x0);
     let weights = nodal_areas(mesh, faces);
     let slaves = weights
@@ -974,12 +965,12 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
             }
             cand.sort_unstable();
             cand.dedup();
-            let excl = exclude.max(1.01 * ring[node]);
-            // near in space and along the surface's edges (a path of edges is up to √2 longer
-            // than the surface's geodesic on a grid of quads split once)
-            let near = geo.within(node, std::f64::consts::SQRT_2 * excl);
+            // (a path of edges is up to √2 longer than the surface's geodesic on a grid of quads
+            // split once)
+            let near = geo.within(node, std::f64::consts::SQRT_2 * exclude);
+            let own = geo.rings(node, 2);
             cand.retain(|&t| {
-                let excluded = triangles[t].iter().zip(&tri_x[t]).any(|(v, x)| dist(*x, p) <= excl && geo.id(v).is_some_and(|i| near.contains(&i)));
+                let excluded = triangles[t].iter().zip(&tri_x[t]).any(|(v, x)| geo.id(v).is_some_and(|i| own.contains(&i) || (dist(*x, p) <= exclude && near.contains(&i))));
                 !excluded && point_triangle(p, tri_x[t]).0 <= reach
             });
             Slave { node, weight, targets: cand }
@@ -1061,6 +1052,40 @@ impl SurfaceGraph {
         } else {
             apply(&rot_z(self.copies[c - 1]), x0[n])
         }
+    }
+
+    /// The vertices within `k` edges of node `node` (copy 0): its ring of triangles' vertices
+    /// for k = 1 (coincident vertices count as one).
+    fn rings(&self, node: usize, k: usize) -> std::collections::HashSet<usize> {
+        let mut seen: std::collections::HashSet<usize> = Default::default();
+        let mut front = vec![node];
+        for level in 0..=k {
+            // close the front over zero-length joins
+            let mut i = 0;
+            while i < front.len() {
+                let v = front[i];
+                for &(j, l) in self.adj.get(&v).map(|a| a.as_slice()).unwrap_or(&[]) {
+                    if l == 0.0 && !front.contains(&j) && !seen.contains(&j) {
+                        front.push(j);
+                    }
+                }
+                i += 1;
+            }
+            seen.extend(front.iter().copied());
+            if level == k {
+                break;
+            }
+            let mut next = Vec::new();
+            for &v in &front {
+                for &(j, _) in self.adj.get(&v).map(|a| a.as_slice()).unwrap_or(&[]) {
+                    if !seen.contains(&j) && !next.contains(&j) {
+                        next.push(j);
+                    }
+                }
+            }
+            front = next;
+        }
+        seen
     }
 
     /// The vertices within distance `r` of node `node` (copy 0) along the surface (Dijkstra).

@@ -795,6 +795,13 @@ pub struct VacuumScene {
     pub wall_time_s: f64,
 }
 
+impl VacuumScene {
+    /// A scene that could not be built or run (no steps).
+    fn model_error(cause: String) -> Self {
+        VacuumScene { status: SceneStatus::ModelError, cause, p_reached_kpa: None, steps: 0, newton_iterations: 0, snaps_kpa: vec![], min_contact_distance_mm: None, wall_time_s: 0.0 }
+    }
+}
+
 /// Ramp each of the row's scenes from 0 to −p⁻ and record the vacuum side in `row.vacuum` (and
 /// its time in `row.wall_time_s`). The reduced models cover positive pressures only: the vacuum
 /// side runs on the full model of the same mesh. Never fails: a panic or a model error is the
@@ -818,34 +825,10 @@ pub fn add_vacuum_side(row: &mut Row, design: &Design, range: RangePolicy, v: &V
                 results.push(r);
             }
             Ok(Err(e)) => {
-                vs.scenes.insert(
-                    kind.name().into(),
-                    VacuumScene {
-                        status: SceneStatus::ModelError,
-                        cause: e.to_string().replace('\n', " "),
-                        p_reached_kpa: None,
-                        steps: 0,
-                        newton_iterations: 0,
-                        snaps_kpa: vec![],
-                        min_contact_distance_mm: None,
-                        wall_time_s: 0.0,
-                    },
-                );
+                vs.scenes.insert(kind.name().into(), VacuumScene::model_error(e.to_string().replace('\n', " ")));
             }
             Err(_) => {
-                vs.scenes.insert(
-                    kind.name().into(),
-                    VacuumScene {
-                        status: SceneStatus::ModelError,
-                        cause: "the vacuum ramp panicked".into(),
-                        p_reached_kpa: None,
-                        steps: 0,
-                        newton_iterations: 0,
-                        snaps_kpa: vec![],
-                        min_contact_distance_mm: None,
-                        wall_time_s: 0.0,
-                    },
-                );
+                vs.scenes.insert(kind.name().into(), VacuumScene::model_error("the vacuum ramp panicked".into()));
             }
         }
     }

@@ -982,8 +982,9 @@ pub fn self_contact(mesh: &Mesh, faces: &[Face], copies: &[f64], exclude: f64, r
 }
 
 /// The node graph of a triangulated surface and its rotated copies, for distances along the
-/// surface: a vertex is a node (id n) or its copy rotated by `copies[c]` (id (c + 1)·N + n); edges are the triangles' edges (reference lengths), and
-/// vertices that coincide (a cyclic sector's cut, seen from both copies) are joined.
+/// surface: a vertex is a node (id n) or its copy rotated by `copies[c]` (id (c + 1)·N + n);
+/// edges are the triangles' edges (reference lengths), and vertices that coincide (a cyclic
+/// sector's cut, seen from both copies) are joined.
 struct SurfaceGraph {
     n: usize,
     copies: Vec<f64>,

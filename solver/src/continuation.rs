@@ -997,16 +997,14 @@ impl<'a, M: PathModel> Follower<'a, M> {
                     };
                     // an event (a fold, a stability limit, a threshold) located beyond λ_end (a
                     // step under functional control passed both): the path reached λ_end first
-                    // and ends there
-                    let (end, n) = if (n.lam - lam_end) * dir >= 0.0 && (cur.lam - lam_end) * dir < 0.0 && n.lam != lam_end {
-                        let e = self.land_on_end(&cur, n, lam_end, dir);
-                        if (e.lam - lam_end).abs() <= self.o.locate_tol * lam_end.abs().max(1e-300) {
-                            (PathEnd::Completed, e)
-                        } else {
-                            (end, e)
-                        }
-                    } else {
-                        (end, n)
+                    // and ends there, located on c (λ_end is also reached beyond a fold, on the
+                    // branch past it, where a solve in λ may land)
+                    let (end, n) = match (n.lam - lam_end) * dir > 0.0 && (cur.lam - lam_end) * dir < 0.0 {
+                        true => match self.end_on_c(&cur, &n, lam_end, dir) {
+                            Some(e) => (PathEnd::Completed, e),
+                            None => (end, n),
+                        },
+                        false => (end, n),
                     };
                     self.emit_stations(&cur, &n, &st, &mut next_station, dir);
                     self.push(&n, PointKind::End, its_point);
@@ -1022,11 +1020,20 @@ impl<'a, M: PathModel> Follower<'a, M> {
     fn land_on_end(&mut self, a: &Node<M>, b: Node<M>, lam_end: f64, dir: f64) -> Node<M> {
         match self.solve_between(a, &b, Control::Load, lam_end) {
             Ok(n) => n,
-            Err(_) => {
-                let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
-                self.locate_crossing(a, &b, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0).filter(|e| (e.lam - lam_end).abs() <= ftol).unwrap_or(b)
-            }
+            Err(_) => self.end_on_c(a, &b, lam_end, dir).unwrap_or(b),
         }
+    }
+
+    /// The point at λ_end between node a (before it) and node b (beyond it), located on c to
+    /// `locate_tol`, then solved at λ_end itself from there (None where the location does not
+    /// converge).
+    fn end_on_c(&mut self, a: &Node<M>, b: &Node<M>, lam_end: f64, dir: f64) -> Option<Node<M>> {
+        let ftol = self.o.locate_tol * lam_end.abs().max(1e-300);
+        let e = self.locate_crossing(a, b, Control::Functional, |x: &Node<M>| dir * (x.lam - lam_end), ftol, 0.0).filter(|e| (e.lam - lam_end).abs() <= ftol)?;
+        if e.lam == lam_end {
+            return Some(e);
+        }
+        Some(self.newton(&e.q, lam_end, None, Some(&e.q), true).unwrap_or(e))
     }
 
     /// Check the segment cur → new for events; Ok(new) when none, else the located end node.

@@ -127,8 +127,9 @@ pub struct SceneOptions {
 
 /// The cavity's self-contact ([`twistopt_solver::contact`]): the barrier's reach d̂, the contact
 /// pressure at the gap d̂/10 (which sets the barrier stiffness κ), and the reference distance
-/// within which wall triangles are candidates of a wall node (beyond its own ring of triangles
-/// and one wall thickness t, [`twistopt_solver::contact::self_contact`]).
+/// within which wall triangles are candidates of a wall node (beyond its own two rings of
+/// triangles and what lies within one wall thickness t both in space and along the surface,
+/// [`twistopt_solver::contact::self_contact`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContactOptions {

@@ -10,6 +10,7 @@ pub mod continuation;
 pub mod dofmap;
 pub mod element;
 pub mod fpenv;
+pub mod integrity;
 pub mod material;
 pub mod mesh;
 pub mod meshgen;

@@ -9,6 +9,7 @@ use super::{build_deck, build_deck_with, ccx_version, run_deck, CcxRun, CcxState
 use crate::evaluate::select_steps;
 use crate::problem::{Problem, Validated};
 use crate::scene::{run_pressure, SceneKind, SceneResult, StepRecord};
+use twistopt_solver::integrity::{least_jacobians, penetration};
 
 /// (a − b)/|b|, or None when the reference is (numerically) zero, i.e. a held quantity.
 pub fn rel_diff(a: f64, b: f64, floor: f64) -> Option<f64> {
@@ -128,10 +129,15 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
     Ok(SceneCheck { scene, twistopt: tw, ccx: run, rows, contact })
 }
 
-/// Per negative step of twistopt's path: the smallest node gap and (sampled, signed) surface
-/// gap over the contact pairs, on twistopt's own element's full mesh ([`surface_gaps`], 7 × 7
-/// samples per face). The barrier keeps the first ≥ 0; the second shows whether the faces
-/// between the nodes overlap.
+/// Per negative step of twistopt's path: the smallest node gap and the sampled and exact signed
+/// surface gaps over the contact pairs, on twistopt's own element's full mesh ([`surface_gaps`],
+/// 7 × 7 samples per slave face). The barrier keeps the first ≥ 0; the exact one (negative only
+/// where a point of one wall lies inside the other wall's material) shows whether the faces
+/// between the nodes overlap, the sampled one estimates it with chords. Also, over the whole
+/// cavity with no pairs ([`penetration`]): the deepest cavity sample inside another element and
+/// how many are (inside unfolded elements, and inside any), and the elements' least det J
+/// relative to their centre's on a 9³ grid ([`least_jacobian`]; ≤ 0: the element's map folds
+/// between its quadrature points).
 pub fn twistopt_surface_gaps(tw: &SceneResult, v: &Validated, pairs: &[PatchPair], sector: bool) -> Result<Value> {
     let Some(fields) = tw.fields.as_ref() else {
         return Ok(Value::Null);
@@ -148,13 +154,22 @@ pub fn twistopt_surface_gaps(tw: &SceneResult, v: &Validated, pairs: &[PatchPair
         }
         let Some(u) = fields.displacements.get(k) else { continue };
         let x = map_deformed(&full, &fields.mesh, u, if sector { 3 } else { 1 })?;
-        let (mut node_gap, mut surface_gap) = (f64::INFINITY, f64::INFINITY);
+        let (mut node_gap, mut sampled, mut exact) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
         for pair in pairs {
-            let (n, g) = surface_gaps(&full, &pair.slave, &pair.master, &x, 7);
-            node_gap = node_gap.min(n);
-            surface_gap = surface_gap.min(g);
+            let g = surface_gaps(&full, &pair.slave, &pair.master, &x, 7);
+            node_gap = node_gap.min(g.node);
+            sampled = sampled.min(g.sampled);
+            exact = exact.min(g.exact);
         }
-        rows.push(json!({"p_kPa": s.p_kpa, "node_gap_mm": node_gap, "surface_gap_mm": surface_gap}));
+        let jac = least_jacobians(&full, &x, 9);
+        let folded = jac.iter().filter(|&&j| !(j > 0.0)).count();
+        let least = jac.iter().copied().fold(f64::INFINITY, f64::min);
+        let cavity = &full.face_sets["cavity"];
+        let (depth, inside) = penetration(&full, cavity, cavity, &x, 7, &|e| jac[e] > 0.0);
+        let (depth_all, inside_all) = penetration(&full, cavity, cavity, &x, 7, &|_| true);
+        rows.push(json!({"p_kPa": s.p_kpa, "node_gap_mm": node_gap, "surface_gap_mm": sampled, "surface_gap_exact_mm": exact,
+            "penetration_mm": depth, "samples_inside_material": inside, "penetration_incl_folded_mm": depth_all, "samples_inside_incl_folded": inside_all,
+            "least_jacobian_ratio": least, "folded_elements": folded}));
     }
     Ok(json!({"element": format!("{:?}", fields.mesh.kind), "pairs": pairs.len(), "samples_per_face": 49, "steps": rows}))
 }

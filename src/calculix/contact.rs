@@ -14,6 +14,7 @@ use anyhow::{bail, Result};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use twistopt_solver::contact::{face_triangles, point_triangle, Vertex};
+use twistopt_solver::integrity::{face_point, inside_element, jacobian_det, norm, project_on_face};
 use twistopt_solver::mesh::{Face, Mesh};
 use twistopt_solver::scalar::{cross, dot};
 
@@ -157,12 +158,27 @@ pub fn map_deformed(full: &Mesh, part: &Mesh, u: &[[f64; 3]], copies: usize) -> 
     Ok(out)
 }
 
-/// The gap between two patches of a mesh's faces at the nodes `x`, measured two ways: from the
-/// slave patch's nodes to the master patch's node triangles ([`face_triangles`], what the contact
-/// barrier sees), and between the faces' own (quadratic) surfaces, each sampled on an m × m grid
-/// per face, negative where a slave sample lies inside the master wall (behind the master face's
-/// outward normal). Returns (node gap, signed surface gap) in mm.
-pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]], m: usize) -> (f64, f64) {
+/// The gaps between two patches of a mesh's faces at the nodes `x` ([`surface_gaps`]), in mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceGaps {
+    /// from the slave patch's nodes to the master patch's node triangles ([`face_triangles`]):
+    /// what the contact barrier sees
+    pub node: f64,
+    /// between the faces' own (quadratic) surfaces, the slave face sampled on an m × m grid and
+    /// the master face replaced by the triangles of its own m × m grid, negative where a sample
+    /// lies behind the nearest such triangle's plane. Its chords and the nearest triangle's sign
+    /// (wrong beside an edge) make it an estimate, good to about the chords' sag.
+    pub sampled: f64,
+    /// the same slave samples against the master faces themselves: the distance to the closest
+    /// point of the quadratic master face (projected by Newton), negative where the sample lies
+    /// inside a master face's element (the isoparametric map inverted): a point of one wall
+    /// inside the other wall's material
+    pub exact: f64,
+}
+
+/// The gap between two patches of a mesh's faces at the nodes `x`, measured three ways
+/// ([`SurfaceGaps`]). `m` ≥ 2 samples per face direction.
+pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]], m: usize) -> SurfaceGaps {
     let m = m.max(2);
     let node_tris: Vec<[[f64; 3]; 3]> = master.iter().flat_map(|&f| face_triangles(mesh, f)).map(|t| [0, 1, 2].map(|i| x[t[i].node().unwrap_or(0)])).collect();
     let mut node_gap = f64::INFINITY;
@@ -172,54 +188,93 @@ pub fn surface_gaps(mesh: &Mesh, slave: &[Face], master: &[Face], x: &[[f64; 3]]
             node_gap = node_gap.min(point_triangle(x[n], *t).0);
         }
     }
-    let grid = |f: Face| -> Vec<Vec<[f64; 3]>> {
-        let nodes = mesh.face_nodes(f);
-        (0..m)
-            .map(|i| {
-                (0..m)
-                    .map(|j| {
-                        let st = [-1.0 + 2.0 * i as f64 / (m - 1) as f64, -1.0 + 2.0 * j as f64 / (m - 1) as f64];
-                        let (nn, _) = twistopt_solver::shape::face_shape(nodes.len(), st);
-                        let mut p = [0.0; 3];
-                        for (a, &n) in nodes.iter().enumerate() {
-                            for c in 0..3 {
-                                p[c] += nn[a] * x[n][c];
-                            }
-                        }
-                        p
-                    })
-                    .collect()
-            })
-            .collect()
-    };
-    // master sub-triangles with their (outward, into the cavity) normals
-    let mut tris: Vec<([[f64; 3]; 3], [f64; 3])> = Vec::new();
-    for &f in master {
+    let st_of = |i: usize, j: usize| [-1.0 + 2.0 * i as f64 / (m - 1) as f64, -1.0 + 2.0 * j as f64 / (m - 1) as f64];
+    let grid = |f: Face| -> Vec<Vec<[f64; 3]>> { (0..m).map(|i| (0..m).map(|j| face_point(mesh, f, x, st_of(i, j)).0).collect()).collect() };
+    // master sub-triangles with their (outward, into the cavity) normals, their face and the
+    // (s, t) of their first vertex
+    let mut tris: Vec<([[f64; 3]; 3], [f64; 3], usize, [f64; 2])> = Vec::new();
+    for (k, &f) in master.iter().enumerate() {
         let g = grid(f);
         for i in 0..m - 1 {
             for j in 0..m - 1 {
                 let (a, b, c, d) = (g[i][j], g[i + 1][j], g[i + 1][j + 1], g[i][j + 1]);
                 for t in [[a, b, c], [a, c, d]] {
-                    tris.push((t, cross(sub(t[1], t[0]), sub(t[2], t[0]))));
+                    tris.push((t, cross(sub(t[1], t[0]), sub(t[2], t[0])), k, st_of(i, j)));
                 }
             }
         }
     }
-    let (mut best, mut signed) = (f64::INFINITY, f64::INFINITY);
-    for &f in slave {
-        for row in grid(f) {
-            for p in row {
-                for (t, n) in &tris {
-                    let d = point_triangle(p, *t).0;
-                    if d < best {
-                        best = d;
-                        signed = if dot(sub(p, t[0]), *n) >= 0.0 { d } else { -d };
+    let h = 2.0 / (m - 1) as f64;
+    let (mut best, mut signed, mut exact) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+    let trace = std::env::var_os("TWISTOPT_GAP_TRACE").is_some();
+    for &sf in slave {
+        for (i, row) in grid(sf).into_iter().enumerate() {
+            for (j, p) in row.into_iter().enumerate() {
+                let dt: Vec<f64> = tris.iter().map(|(t, ..)| point_triangle(p, *t).0).collect();
+                let (k0, d0) = dt.iter().enumerate().fold((0, f64::INFINITY), |acc, (k, &d)| if d < acc.1 { (k, d) } else { acc });
+                if d0 < best {
+                    best = d0;
+                    let (t, n, ..) = &tris[k0];
+                    signed = if dot(sub(p, t[0]), *n) >= 0.0 { d0 } else { -d0 };
+                }
+                // the master faces near the sample (a sub-triangle within its own size of the
+                // nearest), each from its nearest sub-triangle's corner
+                let mut start: BTreeMap<usize, (f64, [f64; 2])> = BTreeMap::new();
+                for (k, (t, _, face, st)) in tris.iter().enumerate() {
+                    let size = (0..3).map(|a| norm(sub(t[a], t[(a + 1) % 3]))).fold(0.0, f64::max);
+                    if dt[k] <= d0 + size {
+                        let e = start.entry(*face).or_insert((f64::INFINITY, *st));
+                        if dt[k] < e.0 {
+                            *e = (dt[k], [st[0] + 0.5 * h, st[1] + 0.5 * h]);
+                        }
+                    }
+                }
+                let mut dist = f64::INFINITY;
+                let mut closest = None;
+                let mut inside = None;
+                for (&face, &(_, st0)) in &start {
+                    let (st, q) = project_on_face(mesh, master[face], x, p, st0);
+                    let d = norm(sub(p, q));
+                    if d < dist {
+                        dist = d;
+                        let (_, ts) = face_point(mesh, master[face], x, st);
+                        closest = Some((face, st, dot(sub(p, q), cross(ts[0], ts[1])).signum()));
+                    }
+                    if inside.is_none() {
+                        inside = inside_element(mesh, master[face].element, x, p).map(|xi| (face, xi, jacobian_det(mesh, master[face].element, x, xi)));
+                    }
+                }
+                let g = if inside.is_some() { -dist } else { dist };
+                if g < exact {
+                    exact = g;
+                    if trace {
+                        // brute force: the closest of 401 × 401 points of each candidate face
+                        let mut bf = (f64::INFINITY, 0usize, [0.0; 2], 0.0);
+                        for &face in start.keys() {
+                            for a in 0..401 {
+                                for b in 0..401 {
+                                    let st = [-1.0 + a as f64 / 200.0, -1.0 + b as f64 / 200.0];
+                                    let (q, ts) = face_point(mesh, master[face], x, st);
+                                    let d = norm(sub(p, q));
+                                    if d < bf.0 {
+                                        bf = (d, face, st, dot(sub(p, q), cross(ts[0], ts[1])).signum());
+                                    }
+                                }
+                            }
+                        }
+                        eprintln!("[surface gap] brute force: {:.4e} at face {:?} st {:?} sign {}", bf.0, master[bf.1], bf.2, bf.3);
+                        eprintln!(
+                            "[surface gap] {g:.3e} mm: slave face {sf:?} sample ({i}, {j}) at {p:?}; sampled {d0:.3e}; inside master {:?}; closest {:?}; candidates {:?}",
+                            inside.map(|(f, xi, j)| (master[f], xi, j)),
+                            closest.map(|(f, st, sg)| (master[f], st, sg)),
+                            start.keys().map(|&k| master[k]).collect::<Vec<_>>()
+                        );
                     }
                 }
             }
         }
     }
-    (node_gap, signed)
+    SurfaceGaps { node: node_gap, sampled: signed, exact }
 }
 
 #[cfg(test)]
@@ -228,24 +283,54 @@ mod tests {
     use twistopt_solver::mesh::ElementKind;
 
     /// A unit block of Hex20: its bottom faces seen from its top faces are 1 away, and inside the
-    /// top faces' element (behind their outward normal), so the signed surface gap is −1; with a
-    /// midside node of the bottom lifted by 0.3 (a sample point of the 5 × 5 grid), both gaps
-    /// drop to 0.7.
+    /// top faces' element (behind their outward normal), so the sampled signed surface gap is −1;
+    /// the exact one is +1, the samples being on the element's boundary, not inside it; with a
+    /// midside node of the bottom lifted by 0.3 (a sample point of the 5 × 5 grid), the gaps
+    /// drop to 0.7 in size.
     #[test]
     fn surface_gaps_of_a_block() {
         let m = twistopt_solver::meshgen::boxed(ElementKind::Hex20, [1, 1, 1], [1.0, 1.0, 1.0]);
         let (bottom, top) = (m.face_sets["zmin"].clone(), m.face_sets["zmax"].clone());
-        let (n, s) = surface_gaps(&m, &bottom, &top, &m.nodes, 5);
-        assert!((n - 1.0).abs() < 1e-12 && (s + 1.0).abs() < 1e-12, "{n} {s}");
-        let (n, s) = surface_gaps(&m, &top, &bottom, &m.nodes, 5);
-        assert!((n - 1.0).abs() < 1e-12 && (s + 1.0).abs() < 1e-12, "{n} {s}");
+        let g = surface_gaps(&m, &bottom, &top, &m.nodes, 5);
+        assert!((g.node - 1.0).abs() < 1e-12 && (g.sampled + 1.0).abs() < 1e-12 && (g.exact - 1.0).abs() < 1e-12, "{g:?}");
+        let g = surface_gaps(&m, &top, &bottom, &m.nodes, 5);
+        assert!((g.node - 1.0).abs() < 1e-12 && (g.sampled + 1.0).abs() < 1e-12 && (g.exact - 1.0).abs() < 1e-12, "{g:?}");
         // the bottom face's midside node at (0.5, 0, 0) lifted by 0.3: the quadratic edge
         // x(s) peaks at the node, so both gaps drop to 0.7 there
         let mut x = m.nodes.clone();
         let mid = (0..x.len()).find(|&i| (x[i][0] - 0.5).abs() < 1e-12 && x[i][1].abs() < 1e-12 && x[i][2].abs() < 1e-12).unwrap();
         x[mid][2] += 0.3;
-        let (n, s) = surface_gaps(&m, &bottom, &top, &x, 5);
-        assert!((n - 0.7).abs() < 1e-12, "{n}");
-        assert!((s + 0.7).abs() < 1e-12, "{s}");
+        let g = surface_gaps(&m, &bottom, &top, &x, 5);
+        assert!((g.node - 0.7).abs() < 1e-12, "{g:?}");
+        assert!((g.sampled + 0.7).abs() < 1e-12 && (g.exact - 0.7).abs() < 1e-12, "{g:?}");
+    }
+
+    /// Two Hex27 stacked in z ([0, 1]², z ∈ [0, 2]); the upper element's top face (the master)
+    /// bulges by 0.01 at its centre node. The lower element's bottom face (the slave), moved
+    /// flat to z = 2.005, lies inside the upper element's material by 0.005 under the bulge's
+    /// peak: the exact gap is −0.005. Moved beside the master element instead (x + 1.5) and just
+    /// below its top (z = 1.99), it is behind the master face's plane but outside the wall: the
+    /// sampled gap is negative there, the exact one is not.
+    #[test]
+    fn exact_surface_gap_inside_and_beside_a_wall() {
+        let m = twistopt_solver::meshgen::boxed(ElementKind::Hex27, [1, 1, 2], [1.0, 1.0, 2.0]);
+        let (bottom, top) = (m.face_sets["zmin"].clone(), m.face_sets["zmax"].clone());
+        let mut x = m.nodes.clone();
+        let centre = (0..x.len()).find(|&i| (x[i][0] - 0.5).abs() < 1e-12 && (x[i][1] - 0.5).abs() < 1e-12 && (x[i][2] - 2.0).abs() < 1e-12).unwrap();
+        x[centre][2] += 0.01;
+        let low: Vec<usize> = (0..x.len()).filter(|&i| x[i][2].abs() < 1e-12).collect();
+        for &i in &low {
+            x[i][2] = 2.005;
+        }
+        let g = surface_gaps(&m, &bottom, &top, &x, 5);
+        assert!((g.exact + 0.005).abs() < 1e-12, "{g:?}");
+        for &i in &low {
+            x[i][0] += 1.5;
+            x[i][2] = 1.99;
+        }
+        let g = surface_gaps(&m, &bottom, &top, &x, 5);
+        // the nearest master point is its edge x = 1, z = 2, 0.5 away in x and 0.01 below
+        assert!(g.sampled < 0.0, "{g:?}");
+        assert!((g.exact - (0.5f64.powi(2) + 0.01f64.powi(2)).sqrt()).abs() < 1e-9, "{g:?}");
     }
 }

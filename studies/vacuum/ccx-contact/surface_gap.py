@@ -98,22 +98,27 @@ def gaps(x, els, slave, master, m):
         return np.array([[shp8(a, b) @ p for b in g] for a in g])
 
     grids = {f: grid(f) for f in master}
-    surface_gap, signed = np.inf, np.inf
+    # each sample's own nearest sub-triangle gives its signed gap; the least of those is the
+    # result (before 2026-12-07 the sign was taken at the globally nearest sample only, which
+    # hid samples inside the master wall whenever another sample was nearer to it in front)
+    signed = np.inf
     for e in slave:
         for p in grid(e).reshape(-1, 3):
+            near, sg = np.inf, np.inf
             for f, G in grids.items():
-                if np.min(np.linalg.norm(G.reshape(-1, 3) - p, axis=1)) > surface_gap + 2.0:
+                if np.min(np.linalg.norm(G.reshape(-1, 3) - p, axis=1)) > near + 2.0:
                     continue
                 for i in range(m - 1):
                     for j in range(m - 1):
                         a, b, c, d = G[i, j], G[i + 1, j], G[i + 1, j + 1], G[i, j + 1]
                         for t in ((a, b, c), (a, c, d)):
                             dd = point_triangle(p, *t)
-                            if dd < surface_gap:
+                            if dd < near:
                                 # the S1 face's (ξ, η) normal points into its element: a point on
                                 # that side of the closest sub-triangle is inside the master wall
                                 n = np.cross(t[1] - t[0], t[2] - t[0])
-                                surface_gap, signed = dd, (-dd if (p - t[0]) @ n > 0 else dd)
+                                near, sg = dd, (-dd if (p - t[0]) @ n > 0 else dd)
+            signed = min(signed, sg)
     return node_gap, signed
 
 

@@ -354,6 +354,13 @@ fn scene_json(r: &SceneResult) -> Value {
         if let Some(d) = r.min_contact_distance_mm {
             o.insert("min_contact_distance_mm".into(), json!(d));
         }
+        // and what the contact leaves on the elements' own geometry (`SceneModel::integrity`)
+        if let Some(d) = r.steps.iter().filter_map(|s| s.penetration_mm).reduce(f64::max) {
+            o.insert("max_penetration_mm".into(), json!(d));
+        }
+        if let Some(k) = r.steps.iter().filter_map(|s| s.folded_elements).max() {
+            o.insert("max_folded_elements".into(), json!(k));
+        }
     }
     v
 }
@@ -401,6 +408,22 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
             r.wall_time_s,
             r.rom_fallback.as_ref().map(|w| format!(" (full model: {w})")).unwrap_or_default()
         ));
+        // self-contact keeps the nodes apart; say so where the elements' own faces still overlap
+        let depth = r.steps.iter().filter_map(|s| s.penetration_mm).fold(0.0, f64::max);
+        let folded = r.steps.iter().filter_map(|s| s.folded_elements).max().unwrap_or(0);
+        if depth > 0.0 || folded > 0 {
+            let first = r
+                .steps
+                .iter()
+                .filter(|s| s.penetration_mm.is_some_and(|d| d > 0.0) || s.folded_elements.is_some_and(|k| k > 0))
+                .map(|s| s.p_kpa)
+                .min_by(|a, b| a.abs().total_cmp(&b.abs()))
+                .unwrap_or(f64::NAN);
+            log(&format!(
+                "scene {}: warning: from p = {first} kPa on, the cavity wall's own faces pass into the material by up to {depth:.3} mm (the contact keeps only its nodes off the facing wall), and up to {folded} elements fold between their quadrature points (steps' penetration_mm and folded_elements in result.json)",
+                r.scene
+            ));
+        }
         r
     };
     let concurrent = rayon::current_num_threads().clamp(1, 4);
@@ -573,6 +596,8 @@ mod tests {
             min_det_f: 1.0,
             newton_iterations: 1,
             contact_distance_mm: None,
+            penetration_mm: None,
+            folded_elements: None,
             snapped: false,
         }
     }

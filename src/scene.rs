@@ -229,6 +229,9 @@ pub struct SceneModel {
     /// index into `Loads::presc` of the cap rotation when it is prescribed
     pub rotation_slot: Option<usize>,
     pub mesh: ActuatorMesh,
+    /// the last [`SceneModel::integrity`]: (the displacements' bit pattern hash, result), so
+    /// that the two output slots of one state measure it once
+    integrity_cache: std::sync::Mutex<Option<(u64, (f64, usize))>>,
 }
 
 /// One converged state of a scene.
@@ -249,6 +252,15 @@ pub struct StepRecord {
     /// wall it may touch (mm; ≥ 0: no interpenetration).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_distance_mm: Option<f64>,
+    /// With self-contact modelled: the deepest point of the cavity surface inside the material of
+    /// another element (mm; 0: none), measured on the elements' own quadratic faces, between the
+    /// nodes included ([`SceneModel::integrity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub penetration_mm: Option<f64>,
+    /// With self-contact modelled: how many elements' maps fold between their quadrature points
+    /// (det J ≤ 0 somewhere; [`SceneModel::integrity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub folded_elements: Option<usize>,
     /// The state was reached by a snap (a jump past a lost stability under the pressure supply),
     /// not along a continuous path from the one before.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -538,7 +550,7 @@ impl SceneModel {
             BodyDof::Presc(s) => Some(s),
             BodyDof::Free(_) => None,
         };
-        Ok(SceneModel { kind, model, multiplicity: if opts.sector { 3.0 } else { 1.0 }, top_nodes, cavity_nodes, cap_reference, rotation_slot, mesh: am })
+        Ok(SceneModel { kind, model, multiplicity: if opts.sector { 3.0 } else { 1.0 }, top_nodes, cavity_nodes, cap_reference, rotation_slot, mesh: am, integrity_cache: Default::default() })
     }
 
     /// The number of unknowns of a path state at `opts`' fidelity (reduced coordinates with a ROM).
@@ -593,6 +605,9 @@ impl SceneModel {
             // the smallest distance of a cavity node to the wall it may touch
             let x0 = &self.model.mesh.nodes;
             lp.extra.push(Box::new(move |a: &Assembled| con.min_distance(&|n: usize| [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]])));
+            // the mesh's integrity on its own (quadratic) geometry: slots OUT_PENETRATION, OUT_FOLDED
+            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).0));
+            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).1 as f64));
         } else if let Some(gap) = contact_gap {
             lp.extra.push(Box::new(move |a: &Assembled| self.contact_margin(a, gap)));
         }
@@ -611,6 +626,8 @@ impl SceneModel {
             min_det_f,
             newton_iterations,
             contact_distance_mm: self.model.contact().map(|_| out.get(OUT_CONTACT).copied().unwrap_or(f64::NAN)).filter(|v| v.is_finite()),
+            penetration_mm: self.model.contact().and(out.get(OUT_PENETRATION).copied()).filter(|v| v.is_finite()),
+            folded_elements: self.model.contact().and(out.get(OUT_FOLDED).copied()).filter(|v| v.is_finite()).map(|v| v as usize),
             snapped: false,
         }
     }
@@ -622,8 +639,49 @@ impl SceneModel {
         if let Some(con) = self.model.contact() {
             let x0 = &self.model.mesh.nodes;
             out.push(con.min_distance(&|n: usize| [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]]));
+            let (depth, folded) = self.integrity(&a.u);
+            out.push(depth);
+            out.push(folded as f64);
         }
         self.step_record(&out, loads.pressure * 1e3, a.min_det_f, newton_iterations)
+    }
+
+    /// The deformed mesh's integrity at displacements `u`, on the elements' own geometry, the
+    /// rotated copies of a sector included (`twistopt_solver::integrity`): (depth, folded), the
+    /// deepest point of the cavity surface (7 × 7 samples per face) inside another element's
+    /// material in mm (0: no interpenetration, between the nodes included), and the number of
+    /// elements whose map folds between their quadrature points (det J ≤ 0 somewhere on a 9³
+    /// grid; those are not tested for the depth). Self-contact keeps the cavity's *nodes* off the
+    /// triangles between the facing wall's nodes; this measures what that leaves.
+    pub fn integrity(&self, u: &[[f64; 3]]) -> (f64, usize) {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        for d in u.iter().flatten() {
+            d.to_bits().hash(&mut h);
+        }
+        let key = h.finish();
+        if let Some((k, r)) = *self.integrity_cache.lock().unwrap_or_else(|e| e.into_inner()) {
+            if k == key {
+                return r;
+            }
+        }
+        let r = self.measure_integrity(u);
+        *self.integrity_cache.lock().unwrap_or_else(|e| e.into_inner()) = Some((key, r));
+        r
+    }
+
+    fn measure_integrity(&self, u: &[[f64; 3]]) -> (f64, usize) {
+        use twistopt_solver::integrity::{least_jacobians, penetration, with_copies};
+        let mesh = &self.model.mesh;
+        let Some(cavity) = mesh.face_sets.get("cavity") else { return (f64::NAN, 0) };
+        let x: Vec<[f64; 3]> = mesh.nodes.iter().zip(u).map(|(p, d)| [p[0] + d[0], p[1] + d[1], p[2] + d[2]]).collect();
+        let copies: Vec<f64> = if self.multiplicity > 1.0 { vec![0.0, 2.0 * std::f64::consts::PI / 3.0, -2.0 * std::f64::consts::PI / 3.0] } else { vec![0.0] };
+        let (all, xs) = with_copies(mesh, &x, &copies);
+        let jac = least_jacobians(&all, &xs, 9);
+        let folded = jac.iter().filter(|&&j| !(j > 0.0)).count() / copies.len();
+        // copy 0's cavity sampled (the copies' samples are its rotations), every copy's walls
+        let (depth, _) = penetration(&all, cavity, &all.face_sets["cavity"], &xs, 7, &|e| jac[e] > 0.0);
+        (depth, folded)
     }
 
     /// The self-contact margin: the smallest current distance, less `gap`, between two cavity
@@ -668,6 +726,10 @@ pub const OUT_REACTION: usize = 2;
 pub const OUT_RADIUS: usize = 3;
 pub const OUT_VOLUME: usize = 4;
 pub const OUT_CONTACT: usize = 5;
+/// With self-contact: the deepest interpenetration of the cavity surface ([`SceneModel::integrity`]).
+pub const OUT_PENETRATION: usize = 6;
+/// With self-contact: the number of folded elements ([`SceneModel::integrity`]).
+pub const OUT_FOLDED: usize = 7;
 
 /// A converged point of a scene path with its reduced state.
 struct ScenePoint {
@@ -891,6 +953,8 @@ impl Equilibrium {
                     min_det_f: 1.0,
                     newton_iterations: 0,
                     contact_distance_mm: None,
+                    penetration_mm: None,
+                    folded_elements: None,
                     snapped: false,
                 });
                 (q, record)

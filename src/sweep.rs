@@ -1655,6 +1655,8 @@ mod tests {
             min_det_f: 1.0,
             newton_iterations: 1,
             contact_distance_mm: None,
+            penetration_mm: None,
+            folded_elements: None,
             snapped: false,
         }
     }

@@ -89,6 +89,12 @@ fn vacuum_path_with_contact_is_unchanged_while_the_walls_stay_apart() {
     }
     let pmin = b.steps.iter().map(|s| s.p_kpa).fold(f64::INFINITY, f64::min);
     assert!((pmin + 20.0).abs() < 1e-6, "reached {pmin}");
+    // with contact every step reports the mesh's integrity on its own faces: apart, the wall
+    // passes into no element and no element folds; without contact it is not measured
+    for s in &b.steps {
+        assert_eq!((s.penetration_mm, s.folded_elements), (Some(0.0), Some(0)), "{s:?}");
+    }
+    assert!(a.steps.iter().all(|s| s.penetration_mm.is_none() && s.folded_elements.is_none()));
 }
 
 #[test]

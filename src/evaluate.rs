@@ -419,8 +419,9 @@ pub fn evaluate(problem: &Problem, out: &Path, log: impl Fn(&str) + Sync) -> Res
                 .map(|s| s.p_kpa)
                 .min_by(|a, b| a.abs().total_cmp(&b.abs()))
                 .unwrap_or(f64::NAN);
+            let folds = if folded > 0 { format!(", and up to {folded} elements fold between their quadrature points") } else { String::new() };
             log(&format!(
-                "scene {}: warning: from p = {first} kPa on, the cavity wall's own faces pass into the material by up to {depth:.3} mm (the contact keeps only its nodes off the facing wall), and up to {folded} elements fold between their quadrature points (steps' penetration_mm and folded_elements in result.json)",
+                "scene {}: warning: from p = {first} kPa on, the cavity wall's own faces pass into the material by up to {depth:.3} mm (the contact keeps only its nodes off the facing wall){folds} (steps' penetration_mm and folded_elements in result.json)",
                 r.scene
             ));
         }
@@ -598,6 +599,7 @@ mod tests {
             contact_distance_mm: None,
             penetration_mm: None,
             folded_elements: None,
+            least_jacobian_ratio: None,
             snapped: false,
         }
     }

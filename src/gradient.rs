@@ -85,6 +85,13 @@ pub struct SceneGradient {
     /// with contact: the closest approach of two cavity walls at the final state (mm)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_distance_mm: Option<f64>,
+    /// with contact: the state's integrity on the elements' own faces (as a scene step's
+    /// `penetration_mm` and `folded_elements`); a state with folded elements is not one the mesh
+    /// represents, and its gradients are those of the discrete model only
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub penetration_mm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub folded_elements: Option<usize>,
     pub dofs: usize,
     /// with a limit search: the pressure (kPa) at which the ramp continued from p fails (the
     /// pressure maximum / instability; at the last converged state), None = no failure up to the
@@ -115,6 +122,8 @@ impl SceneGradient {
             ks_gap_mm: f64::NAN,
             min_det_f: eq.record.min_det_f,
             contact_distance_mm: eq.record.contact_distance_mm,
+            penetration_mm: eq.record.penetration_mm,
+            folded_elements: eq.record.folded_elements,
             dofs,
             p_limit_kpa: None,
             p_limit_cause: None,

@@ -227,6 +227,10 @@ pub struct VacuumSide {
     /// the closest approach of two cavity walls at −p⁻ (mm; None without contact)
     #[serde(rename = "min_contact_distance_mm", default, skip_serializing_if = "Option::is_none")]
     pub min_contact_distance_mm: Option<f64>,
+    /// with contact: the elements folded between their quadrature points at −p⁻ (the scenes'
+    /// largest count; > 0: a state the mesh does not represent, studies/vacuum)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub folded_elements: Option<usize>,
 }
 
 /// Reading back numbers that JSON wrote as null (serde_json writes NaN and ±∞ so): NaN.
@@ -534,6 +538,7 @@ impl OptProblem {
                     tau_nm: vg.scenes.values().find_map(|s| s.values.get("tau_Nm").copied()),
                     omega_j_m3: vg.omega.get(key).map(|o| o.value),
                     min_contact_distance_mm: vg.scenes.values().filter_map(|s| s.contact_distance_mm).reduce(f64::min),
+                    folded_elements: vg.scenes.values().filter_map(|s| s.folded_elements).max(),
                 });
                 Some(vg)
             }

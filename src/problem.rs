@@ -39,13 +39,16 @@
 //! ballooning_limit_mm = 28.75   # stop a ramp when the max deformed radius exceeds this (1.15·R0)
 //! cap_load = true               # the pressure also pushes on the top cap (default); false = on
 //!                               # the lateral wall only
-//! # contact = { dhat_mm = 0.1, pressure_MPa = 0.1, reach_mm = 20, blend_mm = 0.02 }
+//! # contact = { dhat_mm = 0.1, pressure_MPa = 0.1, reach_mm = 20, blend_mm = 0.02, stop_at_fold = true }
 //!                               # frictionless self-contact of the cavity wall (vacuum): the
 //!                               # barrier's reach d̂, the contact pressure at d̂/10, the reference
 //!                               # distance of candidate wall pairs, the crease blend width; a
 //!                               # vacuum ramp then snaps through the wall's collapse and goes on;
 //!                               # optional axle_radius_mm = 2: the pure-twist scenes' rigid axle
 //!                               # along the axis, which the cavity wall then also contacts
+//!                               # stop_at_fold = true (default): the ramp ends where an
+//!                               # element folds between its quadrature points (status
+//!                               # inversion); false goes on and records folded_elements
 //!
 //! [torque_rotation]             # optional: the letter's Fig. 4b (torque vs prescribed rotation)
 //! pressures_kPa = [30, 71]      # one line per pressure (non-zero)
@@ -741,6 +744,11 @@ mod tests {
         let c = p.scene_options(&v).contact.unwrap();
         assert_eq!(c, crate::scene::ContactOptions { reach_mm: 15.0, ..Default::default() });
         assert!(toml::to_string(&p).unwrap().contains("reach_mm = 15.0"));
+        assert!(c.stop_at_fold, "a vacuum ramp ends at a folded element by default");
+        let p = Problem::from_str_with(BASE, "t", &["scenes.contact={stop_at_fold = false}".into()]).unwrap();
+        assert!(!p.scene_options(&p.validate().unwrap()).contact.unwrap().stop_at_fold);
+        let e = err(BASE, &["scenes.contact={stop_at_fold = 1}"]);
+        assert!(e.contains("stop_at_fold"), "{e}");
         let e = err(BASE, &["scenes.contact={dhat_mm = -0.1}"]);
         assert!(e.starts_with("scenes.contact.dhat_mm = -0.1 must be finite and positive"), "{e}");
         let e = err(BASE, &["scenes.contact={reach_mm = 2.0}"]);

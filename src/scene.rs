@@ -148,6 +148,16 @@ pub struct ContactOptions {
     /// Other scenes have no axle.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub axle_radius_mm: Option<f64>,
+    /// End a vacuum ramp where an element first folds between its quadrature points (located on
+    /// the path; status `inversion`): past it the mesh does not represent the wall (the element
+    /// covers some points twice and its faces pass through its neighbours'). false: go on and
+    /// record each step's `folded_elements` and `penetration_mm`.
+    #[serde(default = "default_true")]
+    pub stop_at_fold: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_dhat_mm() -> f64 {
@@ -172,7 +182,7 @@ fn default_blend_mm() -> f64 {
 
 impl Default for ContactOptions {
     fn default() -> Self {
-        ContactOptions { dhat_mm: default_dhat_mm(), pressure_mpa: default_contact_pressure(), reach_mm: default_reach_mm(), blend_mm: default_blend_mm(), axle_radius_mm: None }
+        ContactOptions { dhat_mm: default_dhat_mm(), pressure_mpa: default_contact_pressure(), reach_mm: default_reach_mm(), blend_mm: default_blend_mm(), axle_radius_mm: None, stop_at_fold: true }
     }
 }
 
@@ -231,7 +241,7 @@ pub struct SceneModel {
     pub mesh: ActuatorMesh,
     /// the last [`SceneModel::integrity`]: (the displacements' bit pattern hash, result), so
     /// that the two output slots of one state measure it once
-    integrity_cache: std::sync::Mutex<Option<(u64, (f64, usize))>>,
+    integrity_cache: std::sync::Mutex<Option<(u64, Integrity)>>,
 }
 
 /// One converged state of a scene.
@@ -261,6 +271,11 @@ pub struct StepRecord {
     /// (det J ≤ 0 somewhere; [`SceneModel::integrity`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub folded_elements: Option<usize>,
+    /// With self-contact modelled: the least det ∂x/∂ξ of any element relative to its centre's
+    /// (on a 9³ grid; ≤ 0: an element folds, and a vacuum ramp ends there unless
+    /// `scenes.contact.stop_at_fold = false`; [`SceneModel::integrity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub least_jacobian_ratio: Option<f64>,
     /// The state was reached by a snap (a jump past a lost stability under the pressure supply),
     /// not along a continuous path from the one before.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -606,8 +621,10 @@ impl SceneModel {
             let x0 = &self.model.mesh.nodes;
             lp.extra.push(Box::new(move |a: &Assembled| con.min_distance(&|n: usize| [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]])));
             // the mesh's integrity on its own (quadratic) geometry: slots OUT_PENETRATION, OUT_FOLDED
-            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).0));
-            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).1 as f64));
+            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).depth_mm));
+            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).folded as f64));
+            // slot OUT_LEAST_JACOBIAN: continuous, so that a fold is located on the path
+            lp.extra.push(Box::new(move |a: &Assembled| self.integrity(&a.u).least_jacobian));
         } else if let Some(gap) = contact_gap {
             lp.extra.push(Box::new(move |a: &Assembled| self.contact_margin(a, gap)));
         }
@@ -628,6 +645,7 @@ impl SceneModel {
             contact_distance_mm: self.model.contact().map(|_| out.get(OUT_CONTACT).copied().unwrap_or(f64::NAN)).filter(|v| v.is_finite()),
             penetration_mm: self.model.contact().and(out.get(OUT_PENETRATION).copied()).filter(|v| v.is_finite()),
             folded_elements: self.model.contact().and(out.get(OUT_FOLDED).copied()).filter(|v| v.is_finite()).map(|v| v as usize),
+            least_jacobian_ratio: self.model.contact().and(out.get(OUT_LEAST_JACOBIAN).copied()).filter(|v| v.is_finite()),
             snapped: false,
         }
     }
@@ -639,21 +657,19 @@ impl SceneModel {
         if let Some(con) = self.model.contact() {
             let x0 = &self.model.mesh.nodes;
             out.push(con.min_distance(&|n: usize| [x0[n][0] + a.u[n][0], x0[n][1] + a.u[n][1], x0[n][2] + a.u[n][2]]));
-            let (depth, folded) = self.integrity(&a.u);
-            out.push(depth);
-            out.push(folded as f64);
+            let i = self.integrity(&a.u);
+            out.push(i.depth_mm);
+            out.push(i.folded as f64);
+            out.push(i.least_jacobian);
         }
         self.step_record(&out, loads.pressure * 1e3, a.min_det_f, newton_iterations)
     }
 
     /// The deformed mesh's integrity at displacements `u`, on the elements' own geometry, the
-    /// rotated copies of a sector included (`twistopt_solver::integrity`): (depth, folded), the
-    /// deepest point of the cavity surface (7 × 7 samples per face) inside another element's
-    /// material in mm (0: no interpenetration, between the nodes included), and the number of
-    /// elements whose map folds between their quadrature points (det J ≤ 0 somewhere on a 9³
-    /// grid; those are not tested for the depth). Self-contact keeps the cavity's *nodes* off the
-    /// triangles between the facing wall's nodes; this measures what that leaves.
-    pub fn integrity(&self, u: &[[f64; 3]]) -> (f64, usize) {
+    /// rotated copies of a sector included (`twistopt_solver::integrity`), see [`Integrity`].
+    /// Self-contact keeps the cavity's *nodes* off the triangles between the facing wall's
+    /// nodes; this measures what that leaves.
+    pub fn integrity(&self, u: &[[f64; 3]]) -> Integrity {
         use std::hash::{Hash, Hasher};
         let mut h = std::collections::hash_map::DefaultHasher::new();
         for d in u.iter().flatten() {
@@ -670,10 +686,10 @@ impl SceneModel {
         r
     }
 
-    fn measure_integrity(&self, u: &[[f64; 3]]) -> (f64, usize) {
+    fn measure_integrity(&self, u: &[[f64; 3]]) -> Integrity {
         use twistopt_solver::integrity::{least_jacobians, penetration, with_copies};
         let mesh = &self.model.mesh;
-        let Some(cavity) = mesh.face_sets.get("cavity") else { return (f64::NAN, 0) };
+        let Some(cavity) = mesh.face_sets.get("cavity") else { return Integrity { depth_mm: f64::NAN, folded: 0, least_jacobian: f64::NAN } };
         let x: Vec<[f64; 3]> = mesh.nodes.iter().zip(u).map(|(p, d)| [p[0] + d[0], p[1] + d[1], p[2] + d[2]]).collect();
         let copies: Vec<f64> = if self.multiplicity > 1.0 { vec![0.0, 2.0 * std::f64::consts::PI / 3.0, -2.0 * std::f64::consts::PI / 3.0] } else { vec![0.0] };
         let (all, xs) = with_copies(mesh, &x, &copies);
@@ -681,7 +697,9 @@ impl SceneModel {
         let folded = jac.iter().filter(|&&j| !(j > 0.0)).count() / copies.len();
         // copy 0's cavity sampled (the copies' samples are its rotations), every copy's walls
         let (depth, _) = penetration(&all, cavity, &all.face_sets["cavity"], &xs, 7, &|e| jac[e] > 0.0);
-        (depth, folded)
+        // (a NaN, from an element map that could not be evaluated, counts as folded)
+        let least = jac[..mesh.n_elements()].iter().fold(f64::INFINITY, |m, &j| if j.is_nan() { f64::NEG_INFINITY } else { m.min(j) });
+        Integrity { depth_mm: depth, folded, least_jacobian: least.max(-1e3) }
     }
 
     /// The self-contact margin: the smallest current distance, less `gap`, between two cavity
@@ -730,6 +748,24 @@ pub const OUT_CONTACT: usize = 5;
 pub const OUT_PENETRATION: usize = 6;
 /// With self-contact: the number of folded elements ([`SceneModel::integrity`]).
 pub const OUT_FOLDED: usize = 7;
+/// With self-contact: the least relative det ∂x/∂ξ of any element ([`SceneModel::integrity`]).
+pub const OUT_LEAST_JACOBIAN: usize = 8;
+
+/// What the contact leaves on the elements' own (quadratic) geometry ([`SceneModel::integrity`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Integrity {
+    /// the deepest point of the cavity surface (7 × 7 samples per face) inside another element's
+    /// material, in mm (0: no interpenetration, between the nodes included); folded elements are
+    /// not tested
+    pub depth_mm: f64,
+    /// the number of elements whose map folds between their quadrature points (det ∂x/∂ξ ≤ 0
+    /// somewhere on a 9³ grid of the element; the solver's det F > 0 check at the quadrature
+    /// points does not see it)
+    pub folded: usize,
+    /// the least det ∂x/∂ξ on that grid relative to the element's centre, over all elements
+    /// (≤ 0: an element folds; 1 for an undistorted brick)
+    pub least_jacobian: f64,
+}
 
 /// A converged point of a scene path with its reduced state.
 struct ScenePoint {
@@ -784,6 +820,9 @@ fn pressure_path_with(
             // a vanishing cavity: the cavity has closed (its walls all in contact), or walls
             // passed each other outside the contact candidates
             stops.push(Stop { name: "cavity-closed".into(), output: OUT_VOLUME, threshold: 0.0, rising: false });
+        }
+        if vacuum && opts.contact.is_some_and(|c| c.stop_at_fold) && opts.rom.is_none() {
+            stops.push(Stop { name: "element-folds".into(), output: OUT_LEAST_JACOBIAN, threshold: 0.0, rising: false });
         }
     }
     let stations: Vec<f64> = stations_kpa.iter().map(|p| p / p_end_kpa).collect();
@@ -890,6 +929,10 @@ fn scene_path(
         PathEnd::Stopped(i) if stops[i].name == "cavity-closed" => {
             Some((SceneStatus::SelfContact, format!("the cavity volume vanished at p = {p_last:.4} kPa (or in the snap beyond it): the cavity has closed, or walls passed each other beyond the contact candidates (if a larger scenes.contact.reach_mm ends at the same pressure, the cavity closed)")))
         }
+        PathEnd::Stopped(i) if stops[i].name == "element-folds" => Some((
+            SceneStatus::Inversion,
+            format!("an element folds between its quadrature points at p = {p_last:.4} kPa (or in the snap beyond it): the mesh does not bend the wall's fold, and past it the cavity surface passes through the wall; a finer mesh through the wall may go further (scenes.contact.stop_at_fold = false goes on and records folded_elements)"),
+        )),
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
         PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),
         PathEnd::Instability => {
@@ -955,6 +998,7 @@ impl Equilibrium {
                     contact_distance_mm: None,
                     penetration_mm: None,
                     folded_elements: None,
+                    least_jacobian_ratio: None,
                     snapped: false,
                 });
                 (q, record)

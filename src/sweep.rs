@@ -1657,6 +1657,7 @@ mod tests {
             contact_distance_mm: None,
             penetration_mm: None,
             folded_elements: None,
+            least_jacobian_ratio: None,
             snapped: false,
         }
     }

@@ -75,6 +75,31 @@ fn self_contact_set_spans_the_neighbouring_sectors() {
     assert!(tau < 1.0 && tau * (len + 5.0) < 0.8 * len + 1e-9, "step fraction {tau} (the wall at {len} mm of {} mm)", len + 5.0);
 }
 
+/// Past the wall's snap the lobes fold; the coarse mesh's elements first fold between their
+/// quadrature points at about −35.3 kPa (the least relative det ∂x/∂ξ on a 9³ grid reaches 0;
+/// measured, studies/vacuum). The ramp ends there, located on the path, with status `inversion`;
+/// every recorded state has no folded element.
+#[test]
+fn a_vacuum_ramp_ends_where_an_element_folds() {
+    let r = run_pressure(&example(), &opts(true), SceneKind::Free, &[-40.0]).unwrap();
+    assert_eq!(r.status, SceneStatus::Inversion, "{}", r.cause);
+    assert!(r.cause.contains("folds between its quadrature points"), "{}", r.cause);
+    let last = r.steps.iter().min_by(|a, b| a.p_kpa.total_cmp(&b.p_kpa)).unwrap();
+    assert!(last.p_kpa > -40.0 && last.p_kpa < -30.0, "ended at {} kPa", last.p_kpa);
+    // past the contact (the barrier active at the end)
+    assert!(last.contact_distance_mm.unwrap() < 0.1, "{last:?}");
+    for s in &r.steps {
+        assert_eq!(s.folded_elements, Some(0), "{s:?}");
+        let j = s.least_jacobian_ratio.unwrap();
+        assert!(j >= -1e-3, "{s:?}");
+        if s.p_kpa > -30.0 {
+            assert!(j > 0.1, "{s:?}");
+        }
+    }
+    // the end is located: the least ratio is near 0 there
+    assert!(last.least_jacobian_ratio.unwrap() < 0.02, "{last:?}");
+}
+
 #[test]
 fn vacuum_path_with_contact_is_unchanged_while_the_walls_stay_apart() {
     // coarse: the path loses stability near −33 kPa with the walls ≥ 0.5 mm apart, beyond the

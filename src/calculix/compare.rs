@@ -101,6 +101,11 @@ pub fn check_scene(problem: &Problem, v: &Validated, scene: SceneKind, deck_opts
     let targets = v.load.targets();
     let vacuum_contact = opts.contact.is_some() && targets.iter().any(|p| *p < 0.0);
     opts.keep_fields = vacuum_contact;
+    // a cross-check compares two codes on the same discretisation, folded elements included
+    // (each row reports them: least_jacobian_ratio, folded_elements); the ramp goes on past them
+    if let Some(c) = opts.contact.as_mut() {
+        c.stop_at_fold = false;
+    }
     if twistopt_element == TwistoptElement::Matched {
         opts.formulation = deck_opts.element.matched_formulation().ok_or_else(|| anyhow::anyhow!("twistopt has no formulation matching {} (use C3D20R or C3D20)", deck_opts.element.name()))?;
     }

@@ -81,6 +81,12 @@ pub fn run(args: &GradientArgs) -> Result<()> {
             g.cost.gradient_time_s,
             100.0 * g.cost.gradient_time_s / g.cost.forward_time_s.max(1e-12)
         );
+        if let Some(k) = g.folded_elements.filter(|&k| k > 0) {
+            println!(
+                "  warning: {k} elements fold between their quadrature points at this state, and the cavity surface passes into the material by {:.3} mm: the mesh does not represent it (the gradients are the discrete model's)",
+                g.penetration_mm.unwrap_or(f64::NAN)
+            );
+        }
         for (f, grad) in &g.gradients {
             let parts: Vec<String> = grad.iter().map(|(k, d)| format!("{k} {d:+.5e}")).collect();
             println!("  {f} = {:.6e}; d/d: {}", g.values[f], parts.join(", "));

@@ -531,6 +531,21 @@ impl OptProblem {
                 if let Some(s) = vg.scenes.values().find(|s| s.status != SceneStatus::Converged) {
                     return fail(ev, format!("failed-vacuum: {} {} at {:.3} kPa: {}", s.scene, s.status, s.p_kpa, s.cause));
                 }
+                // a state with folded elements is not one the mesh represents (as a scene's ramp
+                // would end before it, `scenes.contact.stop_at_fold`)
+                if vopts.contact.is_some_and(|c| c.stop_at_fold) {
+                    if let Some(s) = vg.scenes.values().find(|s| s.folded_elements.is_some_and(|k| k > 0)) {
+                        return fail(
+                            ev,
+                            format!(
+                                "failed-vacuum: {} inversion at {:.3} kPa: {} elements fold between their quadrature points (scenes.contact.stop_at_fold = false accepts the state)",
+                                s.scene,
+                                s.p_kpa,
+                                s.folded_elements.unwrap_or(0)
+                            ),
+                        );
+                    }
+                }
                 let key = if self.scenes.contains(&SceneKind::Free) { "combined" } else { "pure-twist" };
                 ev.vacuum = Some(VacuumSide {
                     p_kpa: -pv,

@@ -125,17 +125,19 @@ fn vacuum_path_with_contact_is_unchanged_while_the_walls_stay_apart() {
 #[test]
 fn adjoint_at_a_contact_state_matches_central_differences() {
     // coarse, free and blocked: past the wall's first snap (−32.9 kPa free) the cavity walls are
-    // in contact at −40 kPa; θ, τ, V and the KS radius w.r.t. r, l, α, p and μ against central
+    // in contact at −34 kPa, before any element folds (−35.3 / −36.0 kPa: the state is one the
+    // mesh represents); θ, τ, V and the KS radius w.r.t. r, l, α, p and μ against central
     // differences (warm re-solves of the perturbed designs at the same state), within 1e-5
     use twistopt::gradient::{fd_check, max_rel_error, scene_gradient, DEFAULT_KS_RHO_PER_MM};
     let g = example();
     let o = opts(true);
     for kind in [SceneKind::Free, SceneKind::Blocked] {
-        let sg = scene_gradient(&g, &o, kind, -40.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
+        let sg = scene_gradient(&g, &o, kind, -34.0, DEFAULT_KS_RHO_PER_MM, None, None).unwrap();
         assert_eq!(sg.status, SceneStatus::Converged, "{kind:?}: {}", sg.cause);
+        assert_eq!(sg.folded_elements, Some(0), "{kind:?}");
         // a contact state: some wall node within the barrier's reach of the facing wall
         let sm = SceneModel::build(&g, &o, kind).unwrap();
-        let a = sm.model.assemble(&sg.q, &sm.loads(-40.0, 0.0), false).unwrap();
+        let a = sm.model.assemble(&sg.q, &sm.loads(-34.0, 0.0), false).unwrap();
         assert!(a.contact_gap < ContactOptions::default().dhat_mm, "{kind:?}: not in contact (gap {})", a.contact_gap);
         let rep = fd_check(&g, &o, kind, &sg, &[1e-4, 1e-5]);
         // (under vacuum the KS radius hardly moves: its gradients are ~1e-9 per unit, at the
@@ -241,4 +243,35 @@ fn end_plates_bound_the_cavity_wall() {
     // at rest the wall is nowhere near a plate: no contact force
     let a = sm.model.assemble(&vec![0.0; sm.model.n_reduced()], &sm.loads(0.0, 0.0), false).unwrap();
     assert!(a.contact_gap > ContactOptions::default().dhat_mm);
+}
+
+/// The optimiser's vacuum side (a two-sided objective at −p⁻) refuses a state with folded
+/// elements as a failed evaluation, as a scene's ramp would end before it; with
+/// `scenes.contact.stop_at_fold = false` it takes it. Coarse example, stroke objective (the free
+/// scene's vacuum side only), p⁻ = 40 kPa: past the free scene's first fold at −35.3 kPa.
+#[test]
+fn the_optimisers_vacuum_side_refuses_a_folded_state() {
+    use twistopt::optimise::build_problem;
+    use twistopt::problem::Problem;
+    for stop in [true, false] {
+        let sets: Vec<String> = vec![
+            "fidelity.preset=\"coarse\"".into(),
+            "design.l_mm=10.0".into(),
+            "design.alpha_deg=60.0".into(),
+            format!("scenes.contact={{stop_at_fold = {stop}}}"),
+            "optimise.objective=\"stroke\"".into(),
+            "optimise.vacuum_kPa=40".into(),
+            "optimise.variables=[\"p_kPa\"]".into(),
+        ];
+        let problem = Problem::load(std::path::Path::new("problems/energy-density.toml"), &sets).unwrap();
+        let v = problem.validate().unwrap();
+        let (op, _) = build_problem(&problem, &v).unwrap();
+        let e = op.evaluate(&[0.3], &mut None, None);
+        if stop {
+            assert!(e.status.starts_with("failed-vacuum") && e.status.contains("fold"), "{}", e.status);
+        } else {
+            assert_eq!(e.status, "ok", "{}", e.status);
+            assert!(e.vacuum.as_ref().unwrap().folded_elements.unwrap() > 0, "{:?}", e.vacuum);
+        }
+    }
 }

@@ -931,7 +931,7 @@ fn scene_path(
         }
         PathEnd::Stopped(i) if stops[i].name == "element-folds" => Some((
             SceneStatus::Inversion,
-            format!("an element folds between its quadrature points at p = {p_last:.4} kPa (or in the snap beyond it): the mesh does not bend the wall's fold, and past it the cavity surface passes through the wall; a finer mesh through the wall may go further (scenes.contact.stop_at_fold = false goes on and records folded_elements)"),
+            format!("an element folds between its quadrature points at p = {p_last:.4} kPa (or in the snap beyond it): past it the mesh does not represent the wall and the cavity surface passes through it; elements nearer cubic where the wall folds (more along the axis) go further, studies/vacuum (scenes.contact.stop_at_fold = false goes on and records folded_elements)"),
         )),
         PathEnd::Stopped(_) => Some((SceneStatus::SelfContact, format!("two cavity walls came closer than {gap:.2} mm at p = {p_last:.4} kPa (contact is not modelled)"))),
         PathEnd::Fold => Some((SceneStatus::LimitPoint, format!("pressure maximum at p = {p_last:.4} kPa (located under volume control)"))),

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Where the example design's vacuum ramp ends (the first element folded between its quadrature
 # points) on meshes of different size, free scene: `studies/vacuum/README.md` § Where the ramp ends.
-# Writes out/fold-onset/<mesh>/ and prints element_quality.py's table. About 2 CPU h in all (24x48x2 alone about 35 min)
-# (24x32x2 alone about 18 min).
+# Writes out/fold-onset/<mesh>/ and prints element_quality.py's table. About 2 CPU h in all
+# (24x32x2 alone about 18 min, 24x48x2 about 35 min).
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 cargo build --release

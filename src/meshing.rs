@@ -398,6 +398,69 @@ pub fn build_mesh(geom: &ActuatorGeometry, spec: &MeshSpec) -> Result<ActuatorMe
     Ok(ActuatorMesh { mesh, cyclic_pairs, quality, spec: *spec })
 }
 
+/// The least scaled Jacobian of a geometry's mesh, as [`mesh_quality`] measures it (the corners
+/// and Gauss points of every element), with its derivative w.r.t. each of `names` (design
+/// parameters, in design units; 0 for a name the design does not have) at the minimising element
+/// and point (the minimum is not smooth where two elements tie; its gradient there is one of
+/// theirs). No floor is applied: a freeform mesh that [`build_mesh`] refuses has one too.
+pub fn min_scaled_jacobian_sensitivity(geom: &ActuatorGeometry, spec: &MeshSpec, names: &[String]) -> Result<(f64, Vec<f64>), MeshError> {
+    spec.validate()?;
+    let nodes = lattice_coords(&geom.act, spec);
+    let (lat_kind, connectivity, node_sets, face_sets, _) = lattice_topology(spec);
+    let mut mesh = Mesh { nodes, kind: lat_kind, connectivity, node_sets, face_sets };
+    if spec.kind == ElementKind::Hex20 {
+        mesh = mesh.to_kind(ElementKind::Hex20);
+    }
+    let pts = quality_points(mesh.kind);
+    let grads: Vec<Vec<[f64; 3]>> = pts.iter().map(|p| shape_gradients(mesh.kind, *p)).collect();
+    let (mut sj_min, mut at) = (f64::INFINITY, (0usize, 0usize));
+    let mut coords = Vec::with_capacity(27);
+    for e in 0..mesh.n_elements() {
+        coords.clear();
+        coords.extend(mesh.element(e).iter().map(|&n| mesh.nodes[n]));
+        for (k, g) in grads.iter().enumerate() {
+            let sj = scaled_jacobian(&coords, g);
+            if !sj.is_finite() {
+                return Err(MeshError::Spec(format!("element {e}: non-finite Jacobian at a quality point")));
+            }
+            if sj < sj_min {
+                (sj_min, at) = (sj, (e, k));
+            }
+        }
+    }
+    let derivs = mesh_shape_derivatives(geom, spec)?;
+    let conn = mesh.element(at.0);
+    let d = names
+        .iter()
+        .map(|name| match derivs.iter().find(|(n, _)| n == name) {
+            None => 0.0,
+            Some((_, dx)) => {
+                let c: Vec<[Dual64; 3]> = conn.iter().map(|&n| std::array::from_fn(|r| Dual64::new(mesh.nodes[n][r], dx[n][r]))).collect();
+                scaled_jacobian(&c, &grads[at.1]).eps
+            }
+        })
+        .collect();
+    Ok((sj_min, d))
+}
+
+/// det J / (|J₁| |J₂| |J₃|) of an element at a natural point (shape gradients `grads`), for any
+/// scalar (dual numbers give its derivative along a node motion).
+fn scaled_jacobian<D: Scalar>(coords: &[[D; 3]], grads: &[[f64; 3]]) -> D {
+    let z = cst::<D>(0.0);
+    let mut j = [[z; 3]; 3];
+    for (x, g) in coords.iter().zip(grads) {
+        for c in 0..3 {
+            for r in 0..3 {
+                j[c][r] = j[c][r] + x[r] * g[c];
+            }
+        }
+    }
+    let [a, b, c] = j;
+    let det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0]);
+    let n = |v: &[D; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    det / (n(&a) * n(&b) * n(&c))
+}
+
 /// dX/dp for every node and every named design parameter (same numbering as [`build_mesh`]),
 /// from forward-mode dual numbers. α (and end-tangent) derivatives are per degree (the design
 /// unit). The parameters are the design's ([`crate::geometry::Design::parameter_names`]: Table I

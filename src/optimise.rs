@@ -320,7 +320,7 @@ impl OptProblem {
     }
 
     /// The geometry's design of unscaled values (p_kPa dropped), with the problem's variant.
-    fn design_of(&self, values: &BTreeMap<String, f64>) -> crate::geometry::Design {
+    pub fn design_of(&self, values: &BTreeMap<String, f64>) -> crate::geometry::Design {
         crate::geometry::Design { values: values.iter().filter(|(k, _)| k.as_str() != P_PRESSURE).map(|(k, v)| (k.clone(), *v)).collect(), variant: self.variant }
     }
 
@@ -341,11 +341,14 @@ impl OptProblem {
                 c.extend(envelope_heights().into_iter().map(|z| format!("{kind}:z={z:.1}")));
             }
         }
+        if self.freeform() {
+            c.push("jacobian".into());
+        }
         c
     }
 
     pub fn n_constraints(&self) -> usize {
-        self.scenes.len() + 1 + if self.envelope() { SHAPE_CONSTRAINTS * ENVELOPE_POINTS } else { 0 }
+        self.scenes.len() + 1 + if self.envelope() { SHAPE_CONSTRAINTS * ENVELOPE_POINTS } else { 0 } + usize::from(self.freeform())
     }
 
     /// The freeform shape's validity as differentiable constraints, each at the
@@ -408,17 +411,50 @@ impl OptProblem {
         (g, dg)
     }
 
-    /// [`OptProblem::envelope_of`] at scaled variables x (None where the geometry cannot be built).
-    pub fn envelope_constraints(&self, x: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+    /// The mesh-quality constraint of a freeform design: (floor − s)/scale ≤ 0, s the least
+    /// scaled Jacobian of this problem's mesh of the design
+    /// ([`crate::meshing::min_scaled_jacobian_sensitivity`]; its gradient at the minimising
+    /// element and point), floor [`JACOBIAN_CONSTRAINT_FLOOR`] above the mesh's refusal at
+    /// [`crate::meshing::FREEFORM_MIN_SCALED_JACOBIAN`], so that the optimiser is held off
+    /// before a design is refused (and sees the constraint's gradient at a refused design too).
+    fn jacobian_of(&self, geom: &ActuatorGeometry) -> Result<(f64, Vec<f64>), crate::meshing::MeshError> {
+        let names: Vec<String> = self.variables.iter().map(|v| v.name.clone()).collect();
+        let (sj, d) = crate::meshing::min_scaled_jacobian_sensitivity(geom, &self.opts.mesh, &names)?;
+        let dg = self.variables.iter().zip(d).map(|(v, di)| if v.name == P_PRESSURE { 0.0 } else { -di * (v.upper - v.lower) / JACOBIAN_CONSTRAINT_SCALE }).collect();
+        Ok(((JACOBIAN_CONSTRAINT_FLOOR - sj) / JACOBIAN_CONSTRAINT_SCALE, dg))
+    }
+
+    /// The shape constraints of a design: envelope, waist and fold at the [`envelope_heights`]
+    /// (with a profile mode among the variables) and the mesh-quality constraint (with any
+    /// freeform mode), in the order of the problem's constraints after radius and stability.
+    fn shape_constraints_of(&self, geom: &ActuatorGeometry) -> Result<(Vec<f64>, Vec<Vec<f64>>), crate::meshing::MeshError> {
+        let (mut g, mut dg) = if self.envelope() { self.envelope_of(geom) } else { (Vec::new(), Vec::new()) };
+        if self.freeform() {
+            let (gj, dj) = self.jacobian_of(geom)?;
+            g.push(gj);
+            dg.push(dj);
+        }
+        Ok((g, dg))
+    }
+
+    /// [`OptProblem::shape_constraints_of`] at scaled variables x (None where the geometry cannot
+    /// be built).
+    pub fn shape_constraints(&self, x: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
         let design = self.unscale(x);
         let d = self.design_of(&design);
         let geom = ActuatorGeometry::new(&d, self.policy).ok()?;
-        Some(self.envelope_of(&geom))
+        self.shape_constraints_of(&geom).ok()
     }
 
     /// Whether the rest radius is a constraint: a freeform profile mode is a variable.
     fn envelope(&self) -> bool {
         self.variables.iter().any(|v| matches!(crate::geometry::freeform::parse_param(&v.name), Some((crate::geometry::freeform::ModeKind::Profile, _))))
+    }
+
+    /// Whether any freeform mode (twist law or profile) is a variable: then the mesh's quality
+    /// is a constraint.
+    fn freeform(&self) -> bool {
+        self.variables.iter().any(|v| crate::geometry::freeform::parse_param(&v.name).is_some())
     }
 
     /// The problem of each fidelity stage (the problem itself when it has no stages).
@@ -479,6 +515,18 @@ impl OptProblem {
             Ok(g) => g,
             Err(e) => return fail(ev, format!("invalid-geometry: {e}")),
         };
+        // the shape constraints first: a design whose mesh is refused below still hands the
+        // optimiser the mesh-quality constraint and its gradient
+        let j0 = self.scenes.len() + 1;
+        match self.shape_constraints_of(&geom) {
+            Ok((g, dg)) => {
+                ev.g[j0..j0 + g.len()].copy_from_slice(&g);
+                for (row, d) in ev.dg[j0..].iter_mut().zip(dg) {
+                    *row = d;
+                }
+            }
+            Err(e) => return fail(ev, format!("invalid-geometry: mesh: {e}")),
+        }
         let p = design[P_PRESSURE];
         let pi = self.variables.iter().position(|v| v.name == P_PRESSURE);
         // the limit search goes to the pressure whose margin the highest allowed p needs
@@ -650,14 +698,6 @@ impl OptProblem {
                 if let Some(i) = pi {
                     ev.dg[ms][i] = if LIMIT_WINDOW * p < pmax { 1.0 - LIMIT_WINDOW } else { 1.0 };
                 }
-            }
-        }
-        if self.envelope() {
-            let (g, dg) = self.envelope_of(&geom);
-            let j0 = self.scenes.len() + 1;
-            ev.g[j0..].copy_from_slice(&g);
-            for (row, d) in ev.dg[j0..].iter_mut().zip(dg) {
-                *row = d;
             }
         }
         if !all_ok {
@@ -1127,6 +1167,11 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
 /// geometry refuses ρ more than [`crate::geometry::ENVELOPE_SLACK_MM`] beyond R, so that a step
 /// across the constraint can still be evaluated.
 pub const ENVELOPE_POINTS: usize = 19;
+/// The mesh-quality constraint's floor on the least scaled Jacobian ([`OptProblem`] with freeform
+/// modes): 0.05 above the refusal at [`crate::meshing::FREEFORM_MIN_SCALED_JACOBIAN`].
+pub const JACOBIAN_CONSTRAINT_FLOOR: f64 = 0.15;
+/// The mesh-quality constraint's scale: (floor − s)/scale ≤ 0.
+pub const JACOBIAN_CONSTRAINT_SCALE: f64 = 0.1;
 /// The envelope constraints' scale: (ρ − R)/scale ≤ 0 (mm).
 const ENVELOPE_SCALE_MM: f64 = 2.0;
 /// The kinds of shape constraints at each of the [`envelope_heights`]: envelope, waist, fold.

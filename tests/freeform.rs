@@ -197,7 +197,8 @@ fn freeform_problem_starts_and_envelope_constraint() {
     let v = problem.validate().unwrap();
     let (op, sec) = build_problem(&problem, &v).unwrap();
     assert_eq!(op.n(), 22);
-    assert_eq!(op.n_constraints(), 2 + 1 + SHAPE_CONSTRAINTS * ENVELOPE_POINTS);
+    // radius × 2, stability, envelope / waist / fold at each height, the mesh's quality
+    assert_eq!(op.n_constraints(), 2 + 1 + SHAPE_CONSTRAINTS * ENVELOPE_POINTS + 1);
     let starts = problem_starting_points(&op, sec.starts, sec.start_from_design, sec.start_spread, sec.start_p_kpa);
     assert_eq!(starts.len(), sec.starts);
     let design = op.unscale(&starts[0]);
@@ -206,7 +207,7 @@ fn freeform_problem_starts_and_envelope_constraint() {
         for (x, d) in s.iter().zip(&starts[0]) {
             assert!((x - d).abs() <= 0.9 * sec.start_spread + 1e-12 && (0.0..=1.0).contains(x));
         }
-        assert!(op.envelope_constraints(s).is_some(), "a start whose geometry is refused");
+        assert!(op.shape_constraints(s).is_some(), "a start whose geometry is refused");
     }
     // a bulge at l = 17: ρ(L/2) = 17 + b₁ crosses R = 20 at b₁ = 3
     let i1 = op.variables.iter().position(|x| x.name == "profile_1_mm").unwrap();
@@ -217,7 +218,7 @@ fn freeform_problem_starts_and_envelope_constraint() {
     // r off its lower bound (the start's 5√3), so that central differences see both sides
     let ir = op.variables.iter().position(|x| x.name == "r_mm").unwrap();
     x[ir] = 0.3;
-    let g = op.envelope_constraints(&x).expect("buildable");
+    let g = op.shape_constraints(&x).expect("buildable");
     let mid = ENVELOPE_POINTS / 2; // z = L/2
     assert!((g.0[mid] * 2.0 - 0.5).abs() < 1e-9, "ρ(L/2) − R = {}", g.0[mid] * 2.0);
     // the waist and fold constraints are satisfied there
@@ -231,10 +232,75 @@ fn freeform_problem_starts_and_envelope_constraint() {
         let (mut xp, mut xm) = (x.clone(), x.clone());
         xp[k] += h;
         xm[k] -= h;
-        let (gp, gm) = (op.envelope_constraints(&xp).unwrap().0, op.envelope_constraints(&xm).unwrap().0);
-        for j in 0..SHAPE_CONSTRAINTS * ENVELOPE_POINTS {
+        let (gp, gm) = (op.shape_constraints(&xp).unwrap().0, op.shape_constraints(&xm).unwrap().0);
+        for j in 0..=SHAPE_CONSTRAINTS * ENVELOPE_POINTS {
             let fd = (gp[j] - gm[j]) / (2.0 * h);
             assert!((fd - g.1[j][k]).abs() <= 1e-5 * fd.abs().max(1.0), "shape constraint {j} / variable {k}: {} vs FD {fd}", g.1[j][k]);
         }
     }
+}
+
+/// The mesh-quality constraint (floor 0.15 on the least scaled Jacobian of the problem's mesh, the
+/// refusal at 0.1): at a design the 24x16x1 mesh refuses (met by an MMA run of
+/// problems/freeform-energy-density.toml, least scaled Jacobian 0.094), the constraint is
+/// violated by (0.15 − 0.094)/0.1, its gradient matches central differences, and an evaluation
+/// there fails with the mesh's refusal while handing the optimiser that constraint and gradient.
+#[test]
+fn mesh_quality_constraint_holds_off_refused_designs() {
+    use twistopt::optimise::{build_problem, JACOBIAN_CONSTRAINT_FLOOR, JACOBIAN_CONSTRAINT_SCALE};
+    use twistopt::problem::Problem;
+    let problem = Problem::load(std::path::Path::new("problems/freeform-energy-density.toml"), &[]).unwrap();
+    let v = problem.validate().unwrap();
+    let (op, _) = build_problem(&problem, &v).unwrap();
+    let vals = [
+        ("r_mm", 9.5107),
+        ("l_mm", 19.2698),
+        ("alpha_deg", 315.9840),
+        ("p_kPa", 38.3483),
+        ("twist_1_deg", -8.4496),
+        ("twist_2_deg", -12.5254),
+        ("twist_3_deg", -9.4173),
+        ("twist_4_deg", 0.1197),
+        ("twist_5_deg", -0.0817),
+        ("twist_6_deg", -13.4069),
+        ("twist_7_deg", 9.7548),
+        ("twist_8_deg", 5.8378),
+        ("profile_1_mm", -0.9717),
+        ("profile_2_mm", -0.4880),
+        ("profile_3_mm", -0.0623),
+        ("profile_4_mm", 0.6230),
+        ("profile_5_mm", 0.1794),
+        ("profile_6_mm", 0.2325),
+        ("profile_7_mm", 0.1781),
+        ("profile_8_mm", -0.4978),
+        ("profile_9_mm", -0.1238),
+        ("profile_10_mm", -0.3054),
+    ];
+    let x: Vec<f64> = op.variables.iter().map(|var| (vals.iter().find(|(n, _)| *n == var.name).unwrap().1 - var.lower) / (var.upper - var.lower)).collect();
+    // the problem's mesh refuses this design
+    let design = op.unscale(&x);
+    let geom = ActuatorGeometry::new(&op.design_of(&design), RangePolicy::TableI).unwrap();
+    let refused = build_mesh(&geom, &op.opts.mesh).err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(refused.contains("minimum scaled Jacobian 0.09"), "{refused}");
+    let (g, dg) = op.shape_constraints(&x).expect("constraints of a refused mesh");
+    let j = g.len() - 1;
+    let sj = JACOBIAN_CONSTRAINT_FLOOR - g[j] * JACOBIAN_CONSTRAINT_SCALE;
+    assert!((0.09..0.1).contains(&sj), "least scaled Jacobian {sj}");
+    assert!(dg[j].iter().any(|d| d.abs() > 1e-3), "{:?}", dg[j]);
+    let ip = op.variables.iter().position(|v| v.name == "p_kPa").unwrap();
+    assert_eq!(dg[j][ip], 0.0);
+    for name in ["alpha_deg", "l_mm", "twist_6_deg", "twist_1_deg", "profile_4_mm", "profile_1_mm"] {
+        let k = op.variables.iter().position(|v| v.name == name).unwrap();
+        let h = 1e-6;
+        let (mut xp, mut xm) = (x.clone(), x.clone());
+        xp[k] += h;
+        xm[k] -= h;
+        let fd = (op.shape_constraints(&xp).unwrap().0[j] - op.shape_constraints(&xm).unwrap().0[j]) / (2.0 * h);
+        assert!((fd - dg[j][k]).abs() <= 1e-5 * fd.abs().max(1.0), "{name}: {} vs FD {fd}", dg[j][k]);
+    }
+    // the evaluation: a failure with the refusal as its status, the constraint and its gradient
+    let ev = op.evaluate(&x, &mut None, None);
+    assert!(!ev.feasible && ev.status.contains("scaled Jacobian"), "{}", ev.status);
+    let m = ev.g.len() - 1;
+    assert!((ev.g[m] - g[j]).abs() < 1e-12 && ev.dg[m] == dg[j]);
 }

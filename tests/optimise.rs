@@ -48,6 +48,10 @@ fn optimisers_agree_on_the_torque_optimum_in_alpha() {
     for k in ["r_mm", "l_mm", "alpha_deg", "p_kPa", "theta_deg", "tau_Nm", "omega_J_m3", "max_radius_mm", "evaluations", "status"] {
         assert!(best.get(k).is_some(), "best.json lacks {k}");
     }
+    // every design value of the best by name (the fixed ones included)
+    for k in ["r_mm", "l_mm", "alpha_deg", "p_kPa"] {
+        assert_eq!(best["design"][k].as_f64(), best[k].as_f64(), "best.json design.{k}");
+    }
     let runs = best["runs"].as_array().unwrap();
     assert_eq!(runs.len(), if cfg!(feature = "nlopt") { 3 } else { 1 });
     let objs: Vec<f64> = runs.iter().map(|r| r["objective"].as_f64().expect("each run found a feasible design")).collect();

@@ -633,7 +633,11 @@ fn best_json(obj: &Objective, runs: &[RunResult], fixed: &std::collections::BTre
     let mut out = match best {
         Some((r, e)) => {
             let g = |k: &str| e.design.get(k).copied().or_else(|| fixed.get(k).copied());
+            // every design value (freeform modes included) and the fixed ones
+            let mut design = fixed.clone();
+            design.extend(e.design.iter().map(|(k, v)| (k.clone(), *v)));
             json!({
+                "design": design,
                 "r_mm": g("r_mm"), "l_mm": g("l_mm"), "alpha_deg": g("alpha_deg"), "p_kPa": g("p_kPa"),
                 "theta_deg": e.theta_deg, "tau_Nm": e.tau_nm,
                 "omega_J_m3": if *obj == Objective::EnergyDensity { Some(e.objective) } else { e.theta_deg.zip(e.tau_nm).map(|(t, q)| crate::scene::energy_density(t, q)) },

@@ -1115,7 +1115,9 @@ mod sqp {
 
 /// KKT measure at an evaluation: with A the constraints within `FEAS_TOL` of active, the smallest
 /// ‖P(∇f + Σ_A λ_i ∇g_i)‖∞ over λ ≥ 0 (P zeroes the components that push out of the box at active
-/// bounds), relative to `scale` (the run's initial ‖∇f‖∞); by enumeration of the active subsets.
+/// bounds), relative to `scale` (the run's initial ‖∇f‖∞); the least over λ from the least
+/// squares of each subset of the first 8 active constraints and from a non-negative least squares
+/// over all of them (an upper bound of that minimum).
 /// Returns (measure, λ).
 pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
     let n = ev.df.len();
@@ -1157,6 +1159,28 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
         let r = proj(&lg);
         if r < best.0 {
             best = (r, lam);
+        }
+    }
+    // all active constraints at once (the enumeration above covers subsets of the first 8 only;
+    // a freeform optimum has the 19 envelope constraints active): non-negative least squares on
+    // the interior components, one more candidate λ
+    if active.len() > 1 && !interior.is_empty() {
+        let g = faer::Mat::<f64>::from_fn(interior.len(), active.len(), |r, c| ev.dg[active[c]][interior[r]]);
+        let b: Vec<f64> = interior.iter().map(|&i| -ev.df[i]).collect();
+        let a = g.transpose() * &g;
+        let c: Vec<f64> = (0..active.len()).map(|k| interior.iter().enumerate().map(|(r, _)| g[(r, k)] * b[r]).sum()).collect();
+        let bb: f64 = b.iter().map(|v| v * v).sum();
+        if bb > 0.0 && a.col_iter().all(|col| col.iter().all(|v| v.is_finite())) {
+            let (x, _) = twistopt_solver::rom::nnls_gram(&a, &c, bb, 0.0, active.len());
+            let mut lam = vec![0.0; ev.g.len()];
+            for (k, &j) in active.iter().enumerate() {
+                lam[j] = x[k];
+            }
+            let lg: Vec<f64> = (0..n).map(|i| ev.df[i] + lam.iter().zip(&ev.dg).map(|(l, r)| l * r[i]).sum::<f64>()).collect();
+            let r = proj(&lg);
+            if r < best.0 {
+                best = (r, lam);
+            }
         }
     }
     (best.0 / scale, best.1)
@@ -1640,6 +1664,22 @@ mod tests {
         // interior with a non-zero gradient: not stationary
         let e = Evaluation::from_parts(&[0.3, 0.5], -1.0, vec![-2.0, 0.0], vec![-1.0], vec![vec![0.0, 1.0]]);
         assert!((kkt_measure(&e, 2.0).0 - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn kkt_measure_sees_stationarity_with_many_active_constraints() {
+        // 12 interior variables, 12 active constraints g_k = x_k − c ≤ 0 and ∇f = −Σ λ_k e_k
+        // with every λ_k = k + 1 > 0: stationary, which needs all 12 multipliers (the subset
+        // enumeration covers the first 8 only)
+        let n = 12;
+        let df: Vec<f64> = (0..n).map(|k| -((k + 1) as f64)).collect();
+        let dg: Vec<Vec<f64>> = (0..n).map(|k| (0..n).map(|i| if i == k { 1.0 } else { 0.0 }).collect()).collect();
+        let e = Evaluation::from_parts(&vec![0.5; n], -1.0, df, vec![0.0; n], dg);
+        let (m, lam) = kkt_measure(&e, 12.0);
+        assert!(m < 1e-12, "{m}");
+        for (k, l) in lam.iter().enumerate() {
+            assert!((l - (k + 1) as f64).abs() < 1e-9, "λ_{k} = {l}");
+        }
     }
 
     #[test]

@@ -1407,7 +1407,9 @@ pub fn run_selected(
                 if let Some(b) = best.or(session.evaluations.len().checked_sub(1)) {
                     x = session.evaluations[b].x.clone();
                 }
-                g0 = session.evaluations.first().map_or(1.0, |e| e.df.iter().fold(0.0f64, |a, v| a.max(v.abs())));
+                // (the scale of the first evaluation with a gradient: a failed first one has none)
+                let ginf = |e: &Evaluation| e.df.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                g0 = session.evaluations.iter().map(ginf).find(|g| *g > 0.0 && g.is_finite()).unwrap_or(1.0);
                 best = best.map(|b| b + evaluations.len());
                 evaluations.extend(session.evaluations);
             }

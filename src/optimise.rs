@@ -1138,6 +1138,18 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
     };
     let scale = scale.max(1e-12);
     let mut best = (proj(&ev.df), vec![0.0; ev.g.len()]);
+    // a candidate: multipliers `vals` of the constraints `set`, kept when its measure is lower
+    let consider = |set: &[usize], vals: &[f64], best: &mut (f64, Vec<f64>)| {
+        let mut lam = vec![0.0; ev.g.len()];
+        for (&j, &v) in set.iter().zip(vals) {
+            lam[j] = v;
+        }
+        let lg: Vec<f64> = (0..n).map(|i| ev.df[i] + lam.iter().zip(&ev.dg).map(|(l, r)| l * r[i]).sum::<f64>()).collect();
+        let r = proj(&lg);
+        if r < best.0 {
+            *best = (r, lam);
+        }
+    };
     // least squares over each subset of the active constraints, on the interior components
     let interior: Vec<usize> = (0..n).filter(|&i| ev.x[i] > 1e-6 && ev.x[i] < 1.0 - 1e-6).collect();
     for mask in 1u32..(1u32 << active.len().min(8)) {
@@ -1151,15 +1163,7 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
         if sol.iter().any(|l| *l < 0.0) {
             continue;
         }
-        let mut lam = vec![0.0; ev.g.len()];
-        for (c, &j) in set.iter().enumerate() {
-            lam[j] = sol[c];
-        }
-        let lg: Vec<f64> = (0..n).map(|i| ev.df[i] + lam.iter().zip(&ev.dg).map(|(l, r)| l * r[i]).sum::<f64>()).collect();
-        let r = proj(&lg);
-        if r < best.0 {
-            best = (r, lam);
-        }
+        consider(&set, sol.as_slice(), &mut best);
     }
     // all active constraints at once (the enumeration above covers subsets of the first 8 only;
     // a freeform optimum has the 19 envelope constraints active): non-negative least squares on
@@ -1172,15 +1176,7 @@ pub fn kkt_measure(ev: &Evaluation, scale: f64) -> (f64, Vec<f64>) {
         let bb: f64 = b.iter().map(|v| v * v).sum();
         if bb > 0.0 && a.col_iter().all(|col| col.iter().all(|v| v.is_finite())) {
             let (x, _) = twistopt_solver::rom::nnls_gram(&a, &c, bb, 0.0, active.len());
-            let mut lam = vec![0.0; ev.g.len()];
-            for (k, &j) in active.iter().enumerate() {
-                lam[j] = x[k];
-            }
-            let lg: Vec<f64> = (0..n).map(|i| ev.df[i] + lam.iter().zip(&ev.dg).map(|(l, r)| l * r[i]).sum::<f64>()).collect();
-            let r = proj(&lg);
-            if r < best.0 {
-                best = (r, lam);
-            }
+            consider(&active, &x, &mut best);
         }
     }
     (best.0 / scale, best.1)

@@ -278,11 +278,12 @@ fn sweep_throughput_rom() {
 }
 
 /// The Table-I sweep's work on the committed reduced model (studies/rom/sweep-k80-points): two
-/// lines of 16 designs along α at the grid's 2° step (r = 5√3, l = 12 from α = 100°; r = 14.16,
-/// l = 19 from α = 240°), free + blocked to failure, cold and with `sweep.warm_start`, through
+/// lines of 40 designs along α at the grid's 2° step (r = 5√3, l = 12 from α = 100°; r = 14.16,
+/// l = 19 from α = 240°; a Table-I line has 151), free + blocked to failure, cold and with `sweep.warm_start`, through
 /// `twistopt::sweep::run_sweep` on one thread (a line is sequential by construction).
 fn sweep_throughput_rom_warm() {
     use twistopt::sweep::{problem_from_str, run_sweep, RunOptions, Shard, SweepConfig};
+    const LINE: usize = 40;
     let rom = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("studies/rom/sweep-k80-points");
     let mut out = serde_json::Map::new();
     let mut per_design = Vec::new();
@@ -292,7 +293,7 @@ fn sweep_throughput_rom_warm() {
         let mut n = 0usize;
         let mut rows_all = Vec::new();
         for (r, l, a0) in [(8.660254037844386, 12.0, 100.0), (14.16025403784439, 19.0, 240.0)] {
-            let alphas: Vec<String> = (0..16).map(|i| format!("{}", a0 + 2.0 * i as f64)).collect();
+            let alphas: Vec<String> = (0..LINE).map(|i| format!("{}", a0 + 2.0 * i as f64)).collect();
             let text = format!(
                 "[load]\np_max_kPa = 150\n[scenes]\nrun = [\"free\", \"blocked\"]\n[fidelity]\npreset = \"sweep\"\nrom = {}\nrom_fallback = inf\n[sweep]\nwarm_start = {warm}\nr_mm = [{r}]\nl_mm = [{l}]\nalpha_deg = [{}]\n",
                 toml_string(&rom.display().to_string()),
@@ -329,7 +330,7 @@ fn sweep_throughput_rom_warm() {
     }
     let (c, w) = (out["cold"]["seconds_per_design"].as_f64().unwrap_or(f64::NAN), out["warm"]["seconds_per_design"].as_f64().unwrap_or(f64::NAN));
     println!("sweep_throughput_rom_warm: warm/cold time {:.2}, Table-I grid ≈ {:.1} h on 2 cores at the warm rate; answers within {worst:.1e}", w / c, 39_864.0 * w / 2.0 / 3600.0);
-    out.insert("description".into(), json!("two lines of 16 Table-I designs along α (2° steps) on studies/rom/sweep-k80-points (no fallback), free + blocked to failure, cold and warm-started (sweep.warm_start), one thread; release build. Times depend on the machine's load"));
+    out.insert("description".into(), json!("two lines of 40 Table-I designs along α (2° steps) on studies/rom/sweep-k80-points (no fallback), free + blocked to failure, cold and warm-started (sweep.warm_start), one thread; release build. Times depend on the machine's load"));
     out.insert("warm_over_cold_time".into(), json!(w / c));
     out.insert("table1_grid_hours_on_2_cores_warm".into(), json!(39_864.0 * w / 2.0 / 3600.0));
     out.insert("max_rel_difference_warm_vs_cold".into(), json!(worst));

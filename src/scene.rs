@@ -376,6 +376,16 @@ pub struct SceneResult {
     /// pressure it was corrected at (the branch has no steps between 0 and it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub warm_start_kpa: Option<f64>,
+    /// The nearby design's branch the positive branch started from (with `warm_start_kpa`):
+    /// [`add_step_at`] corrects its state at the nearest pressure first.
+    #[serde(skip)]
+    pub warm: Option<WarmStart>,
+    /// States of this branch corrected from a nearby design's (the warm start, and steps
+    /// [`add_step_at`] reached that way): (pressure of the step, state − the nearby state), which
+    /// the next design along the line adds to the same nearby state as its first guess
+    /// (extrapolation along the line, see [`WarmStart`]).
+    #[serde(skip)]
+    pub warm_deltas: Vec<(f64, Vec<f64>)>,
     /// The pressures at which the path snapped through a lost stability (vacuum with contact;
     /// the states just past them are marked `snapped`).
     #[serde(default, skip_serializing_if = "Vec::is_empty", rename = "snaps_kPa")]
@@ -400,6 +410,11 @@ pub struct WarmStart {
     pub points: Vec<(f64, f64, Vec<f64>)>,
     /// the branch ended at a pressure maximum
     pub fold: bool,
+    /// per point: how it differs from the nearby design's state it was corrected from, where it
+    /// was (`SceneResult::warm_deltas`); a design further along the line starts from point +
+    /// delta (linear extrapolation along the line: its guesses start with residuals 3-10×
+    /// smaller)
+    pub deltas: Vec<Option<Vec<f64>>>,
 }
 
 impl WarmStart {
@@ -408,7 +423,8 @@ impl WarmStart {
         let mut points: Vec<(f64, f64, Vec<f64>)> =
             r.steps.iter().zip(&r.states).filter(|(s, _)| s.p_kpa > 0.0 && s.p_kpa.is_finite()).map(|(s, q)| (s.p_kpa, s.cavity_volume_mm3, q.clone())).collect();
         points.sort_by(|a, b| a.0.total_cmp(&b.0));
-        (points.len() >= 2).then_some(WarmStart { points, fold: r.status == SceneStatus::LimitPoint })
+        let deltas = points.iter().map(|(p, _, q)| r.warm_deltas.iter().find(|(pd, d)| pd == p && d.len() == q.len()).map(|(_, d)| d.clone())).collect();
+        (points.len() >= 2).then_some(WarmStart { points, fold: r.status == SceneStatus::LimitPoint, deltas })
     }
 }
 
@@ -417,6 +433,15 @@ const WARM_ATTEMPTS: usize = 2;
 /// A warm start is at least this far below the nearby branch's end (relative, in cavity volume
 /// where the branch ended at a pressure maximum, else in pressure).
 const WARM_GAP: f64 = 0.01;
+/// A nearby branch is flat near its end (warm starts in volume, see `run_pressure_once`) where
+/// its relative volume grows more than this many times its relative pressure towards the end.
+const WARM_FLAT: f64 = 3.0;
+/// A warm start from a nearby branch's pressure maximum is corrected this fraction below the
+/// maximum's volume (moved on along the line), and its first step goes as far beyond it.
+const WARM_FOLD_GAP: f64 = 0.005;
+/// [`add_step_at`] on a warm-started branch corrects the nearby design's state at the nearest
+/// pressure when that is within this fraction of the pressure sought.
+const WARM_NEAR: f64 = 0.05;
 /// The first step from a warm start goes this far past the nearby branch's end, relative to
 /// the start's distance to it.
 const WARM_REACH: f64 = 1.1;
@@ -447,6 +472,8 @@ impl SceneResult {
             rom_indicator: None,
             rom_fallback: None,
             warm_start_kpa: None,
+            warm: None,
+            warm_deltas: Vec::new(),
             snaps_kpa: Vec::new(),
             min_contact_distance_mm: None,
         }
@@ -789,7 +816,7 @@ struct ScenePath {
 /// Follow the scene's pressure from the state `q0` at `p0_kpa` to `p_end_kpa` with stations at
 /// `stations_kpa`; the ballooning limit and (for vacuum) self-contact stop it where `stop` says.
 fn pressure_path(sm: &SceneModel, opts: &SceneOptions, q0: &[f64], p0_kpa: f64, p_end_kpa: f64, stations_kpa: &[f64], stop: bool) -> ScenePath {
-    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop, false, false)
+    pressure_path_with(sm, &opts.steps, opts, q0, p0_kpa, p_end_kpa, stations_kpa, stop, false, None)
 }
 
 /// [`pressure_path`] with its own path options: on the full model, or on the reduced one when
@@ -805,7 +832,7 @@ fn pressure_path_with(
     stations_kpa: &[f64],
     stop: bool,
     want_indicator: bool,
-    guess: bool,
+    guess: Option<f64>,
 ) -> ScenePath {
     let vacuum = p_end_kpa < 0.0;
     let gap = sm.contact_gap();
@@ -868,23 +895,28 @@ fn pressure_path_with(
     scene_path(sm, opts, &res.points, res.end, res.stats, |lam| lp.loads(lam), &stops, p0_kpa, gap, res.last)
 }
 
-/// With `guess`: Newton from the state `q` (a nearby design's, at the same load), which must
-/// converge to a stable state: (state, iterations), or the iterations spent when it does not.
-/// A path that starts under functional control holds the control functional at its value at q
-/// (λ an unknown: well posed also where the load λ lies beyond this design's maximum).
-fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: bool) -> Result<(Vec<f64>, f64, usize), usize> {
-    if !guess {
+/// With `guess` (Some(f)): Newton from the state `q` (a nearby design's, at the same load),
+/// which must converge to a stable state: (state, iterations), or the iterations spent when it
+/// does not. A path that starts under functional control holds the control functional at f ×
+/// its value at q (λ an unknown: well posed also where the load λ lies beyond this design's
+/// maximum, and at a pressure maximum itself).
+fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: Option<f64>) -> Result<(Vec<f64>, f64, usize), usize> {
+    let Some(f) = guess else {
         return Ok((q.to_vec(), lam, 0));
-    }
+    };
     let c = match o.start_control {
         Control::Functional => match m.eval(q, lam, false, None) {
-            Ok(e) => e.control.map(|c| c.0),
+            Ok(e) => e.control.map(|c| f * c.0),
             Err(_) => return Err(0),
         },
         Control::Load => None,
     };
     // (converged as tightly as located events: the path takes the state as its start)
-    let tight = twistopt_solver::solve::NewtonOptions { rtol: o.newton.rtol.min(1e-10), ..o.newton.clone() };
+    // (and allowed the iterations of a solve from far: a guess from a nearby design starts with
+    // a residual of the order of the forces, mostly in the cap's rigid DOFs, and on a design
+    // 2° on from the last it fell by 6× in 3 iterations, which the path's stall rule (10× in 3)
+    // refused, and the scene ramped from zero: ≈ 60 iterations instead of ≈ 10)
+    let tight = twistopt_solver::solve::NewtonOptions { rtol: o.newton.rtol.min(1e-10), stall_iterations: 8, stall_ratio: 1.0, ..o.newton.clone() };
     match correct(m, q, lam, c, &tight, o.mixed_tangent, None, false) {
         Ok(s) if s.stable => Ok((s.q, s.lam, s.iterations)),
         Ok(s) => Err(s.iterations),
@@ -1145,6 +1177,7 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
     // the reduced model's indicator at its path's highest pressure (positive branch)
     let mut indicator: Option<(f64, f64)> = None;
     let mut warm_start_kpa = None;
+    let mut warm_deltas = Vec::new();
     for branch in [pos, neg] {
         let Some(&p_end) = branch.last() else {
             continue;
@@ -1159,19 +1192,49 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
             let (&(p_e, v_e, _), rest) = w.points.split_last().expect("two points");
             // (at least WARM_GAP from the end: a start closer to it would leave the next design
             // only closer ones, and the steps from them grow from nothing)
-            let far = |c: &&(f64, f64, Vec<f64>)| if w.fold { c.1 <= (1.0 - WARM_GAP) * v_e } else { c.0 <= (1.0 - WARM_GAP) * p_e };
-            for (p_w, v_w, state) in rest.iter().rev().filter(far).filter(|c| c.0 < p_end && c.2.len() == q0.len()).take(WARM_ATTEMPTS) {
-                let wo = if w.fold && v_e > *v_w && *v_w > 0.0 {
+            // (in volume where the branch ends at its pressure maximum, or where it is flat
+            // between the start and its end, as a ballooning stop just below the maximum: under
+            // load control the first step from there passed this design's maximum and failed)
+            let flat = |c: &(f64, f64, Vec<f64>)| w.fold || (c.0 > 0.0 && c.1 > 0.0 && (v_e - c.1) / c.1 > WARM_FLAT * (p_e - c.0) / c.0);
+            let far = |c: &&(f64, f64, Vec<f64>)| if flat(c) { c.1 <= (1.0 - WARM_GAP) * v_e } else { c.0 <= (1.0 - WARM_GAP) * p_e };
+            // the attempts: (guess, the nearby state it extrapolates, whether that is the
+            // nearby branch's pressure maximum, its pressure, path options, volume factor)
+            let mut attempts: Vec<(Vec<f64>, &Vec<f64>, bool, f64, ContinuationOptions, f64)> = Vec::new();
+            // first, where the nearby branch ended at its pressure maximum: its end state moved
+            // on along the line (end to end), corrected WARM_FOLD_GAP below its volume, and a
+            // first step to as far beyond it: the maximum is bracketed in one short step
+            // (from a state further below, the first step's tangent-line prediction needed ≈ 5
+            // iterations)
+            let (q_e, d_e) = (&w.points[w.points.len() - 1].2, w.deltas.last().and_then(|d| d.as_deref()));
+            if w.fold && p_e < p_end && q_e.len() == q0.len() {
+                let wo = ContinuationOptions { start_control: Control::Functional, initial_functional: Some(2.0 * WARM_FOLD_GAP), ..opts.steps.clone() };
+                attempts.push((extrapolated(q_e, d_e), q_e, true, p_e, wo, 1.0 - WARM_FOLD_GAP));
+            }
+            for (cand, delta) in rest.iter().zip(&w.deltas).rev().filter(|(c, _)| far(c)).filter(|(c, _)| c.0 < p_end && c.2.len() == q0.len()).take(WARM_ATTEMPTS) {
+                let (p_w, v_w, state) = cand;
+                let wo = if flat(cand) && v_e > *v_w && *v_w > 0.0 {
                     ContinuationOptions { start_control: Control::Functional, initial_functional: Some(WARM_REACH * (v_e - v_w) / v_w), ..opts.steps.clone() }
                 } else {
                     ContinuationOptions { initial: (WARM_REACH * (p_e - p_w) / (p_end - p_w)).clamp(opts.steps.min, 1.0), ..opts.steps.clone() }
                 };
-                let path = pressure_path_with(&sm, &wo, opts, state, *p_w, p_end, stations, true, true, true);
+                attempts.push((extrapolated(state, delta.as_deref()), state, false, *p_w, wo, 1.0));
+            }
+            for (guess, origin, from_end, p_w, wo, factor) in attempts {
+                let path = pressure_path_with(&sm, &wo, opts, &guess, p_w, p_end, stations, true, true, Some(factor));
                 stats.add(&path.stats);
                 if !(path.points.len() > 1 && path.points[0].record.max_radius_mm < opts.ballooning_limit_mm) {
                     continue;
                 }
                 let p0 = path.points[0].record.p_kpa;
+                let delta = |q: &[f64]| q.iter().zip(origin).map(|(a, b)| a - b).collect::<Vec<f64>>();
+                if !from_end {
+                    warm_deltas.push((p0, delta(&path.points[0].q)));
+                }
+                // this branch's end from the nearby one's (both at a pressure maximum or
+                // stability limit): the next design's first guess
+                if let (true, Some((SceneStatus::LimitPoint, _)), Some(last)) = (w.fold, &path.end, path.points.last()) {
+                    warm_deltas.push((last.record.p_kpa, delta(&last.q)));
+                }
                 warmed = Some((path, p0));
                 break;
             }
@@ -1182,7 +1245,7 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
                 (path, 0)
             }
             None => {
-                let path = pressure_path_with(&sm, &opts.steps, opts, &q0, 0.0, p_end, stations, true, true, false);
+                let path = pressure_path_with(&sm, &opts.steps, opts, &q0, 0.0, p_end, stations, true, true, None);
                 stats.add(&path.stats);
                 (path, 1)
             }
@@ -1229,6 +1292,8 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
         rom_indicator,
         rom_fallback: None,
         warm_start_kpa,
+        warm: warm.filter(|_| warm_start_kpa.is_some()).cloned(),
+        warm_deltas,
         scene: kind.name().to_string(),
         status: status.0,
         cause: status.1,
@@ -1275,6 +1340,24 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
         }
     }
     let sm = SceneModel::build(geom, opts, kind)?;
+    // a warm-started branch (reduced model) has no states between the unloaded one and its
+    // start: the nearby design's state at the nearest pressure, corrected at p, is a closer
+    // start than any of them (3-4 iterations, where the segment down from the start near the
+    // pressure maximum took about 12, with a failed step, on the Table-I sweep)
+    if let Some(w) = r.warm.as_ref().filter(|_| opts.rom.is_some()) {
+        let near = w.points.iter().zip(&w.deltas).filter(|(c, _)| c.2.len() == r.states[i].len() && c.0 > 0.0 && (c.0 - p_kpa).abs() <= WARM_NEAR * p_kpa.abs()).min_by(|a, b| (a.0 .0 - p_kpa).abs().total_cmp(&(b.0 .0 - p_kpa).abs()));
+        if let Some(((_, _, q), delta)) = near {
+            let load = ContinuationOptions { start_control: Control::Load, ..opts.steps.clone() };
+            let path = pressure_path_with(&sm, &load, opts, &extrapolated(q, delta.as_deref()), p_kpa, p_kpa, &[], false, false, Some(1.0));
+            r.newton_iterations += path.stats.newton_iterations;
+            r.path.add(&path.stats);
+            if let (None, Some(p)) = (&path.end, path.points.into_iter().last()) {
+                r.warm_deltas.push((p_kpa, p.q.iter().zip(q).map(|(a, b)| a - b).collect()));
+                insert_step(&sm, r, p, p_kpa);
+                return Ok(());
+            }
+        }
+    }
     // a short segment from a converged step: try it in one step (the step control shrinks it
     // if needed). Between the branch's last regular step and its pressure maximum the path is
     // nearly singular in p, so the segment goes under volume control there (under load control
@@ -1283,24 +1366,58 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
     // ends at a pressure maximum, such states lie close to it)
     let to_fold = end_fold && i + 2 == n;
     let start_control = if to_fold || down { Control::Functional } else { Control::Load };
-    let short = ContinuationOptions { initial: 1.0, max: 1.0, start_control, max_steps: 50, ..opts.steps.clone() };
-    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false, false, false);
+    // down from a state near a pressure maximum: the first step in c from the branch's
+    // quadratic shape there, p(c) ≈ p* − a (c − c*)² through the state and the maximum (the
+    // tangent's dc/dλ, which the step would otherwise be converted by, grows without bound
+    // towards the maximum: the step from it overshot, diverged and was retried three times)
+    let initial_functional = if down && end_fold { down_step_functional(&r.steps[i], &r.steps[n - 1], p_kpa) } else { None };
+    let short = ContinuationOptions { initial: 1.0, max: 1.0, start_control, initial_functional, max_steps: 50, ..opts.steps.clone() };
+    let path = pressure_path_with(&sm, &short, opts, &r.states[i], r.steps[i].p_kpa, p_kpa, &[], false, false, None);
     r.newton_iterations += path.stats.newton_iterations;
     r.path.add(&path.stats);
     if path.end.is_none() {
-        if let Some(mut p) = path.points.into_iter().last() {
-            p.record.p_kpa = p_kpa;
-            let k = r.steps.partition_point(|s| s.p_kpa < p_kpa);
-            if let Some(f) = r.fields.as_mut() {
-                if let Ok(a) = sm.model.assemble(&p.q, &sm.loads(p_kpa, 0.0), false) {
-                    f.displacements.insert(k.min(f.displacements.len()), a.u);
-                }
-            }
-            r.steps.insert(k, p.record);
-            r.states.insert(k, p.q);
+        if let Some(p) = path.points.into_iter().last() {
+            insert_step(&sm, r, p, p_kpa);
         }
     }
     Ok(())
+}
+
+/// Insert the converged point `p` at pressure `p_kpa` into `r`'s steps (by pressure).
+fn insert_step(sm: &SceneModel, r: &mut SceneResult, mut p: ScenePoint, p_kpa: f64) {
+    p.record.p_kpa = p_kpa;
+    let k = r.steps.partition_point(|s| s.p_kpa < p_kpa);
+    if let Some(f) = r.fields.as_mut() {
+        if let Ok(a) = sm.model.assemble(&p.q, &sm.loads(p_kpa, 0.0), false) {
+            f.displacements.insert(k.min(f.displacements.len()), a.u);
+        }
+    }
+    r.steps.insert(k, p.record);
+    r.states.insert(k, p.q);
+}
+
+/// A nearby design's state moved on by how the nearby design's own state there differed from
+/// its predecessor's (None or a mismatched length: the state itself).
+fn extrapolated(q: &[f64], delta: Option<&[f64]>) -> Vec<f64> {
+    match delta {
+        Some(d) if d.len() == q.len() => q.iter().zip(d).map(|(a, b)| a + b).collect(),
+        _ => q.to_vec(),
+    }
+}
+
+/// The first functional step (a fraction of the start's cavity volume) from the state `from`
+/// down to the pressure `p_kpa` on a branch that ends at the pressure maximum `fold`, by the
+/// branch's quadratic shape there (p(c) = p* − a (c − c*)² through both), 10 % beyond the
+/// estimate so that the step passes p (the path then lands on it exactly); None where the
+/// records do not bracket it that way.
+fn down_step_functional(from: &StepRecord, fold: &StepRecord, p_kpa: f64) -> Option<f64> {
+    let (pj, cj, ps, cs) = (from.p_kpa, from.cavity_volume_mm3, fold.p_kpa, fold.cavity_volume_mm3);
+    if !(ps > pj && pj > p_kpa && cs > cj && cj > 0.0) {
+        return None;
+    }
+    let ct = cs - (cs - cj) * ((ps - p_kpa) / (ps - pj)).sqrt();
+    let f = WARM_REACH * (cj - ct) / cj;
+    (f.is_finite() && f > 0.0).then_some(f)
 }
 
 /// Torque at prescribed cap rotations from 0 to the free rotation, at one pressure.
@@ -1384,4 +1501,45 @@ pub fn run_torque_rotation(geom: &ActuatorGeometry, opts: &SceneOptions, axial_f
 pub fn energy_density(theta_deg: f64, tau_nm: f64) -> f64 {
     let v_m3 = std::f64::consts::PI * R0_ENVELOPE * R0_ENVELOPE * L_TUBE * 1e-9;
     tau_nm * theta_deg.to_radians() / (8.0 * v_m3)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(p_kpa: f64, v_mm3: f64) -> StepRecord {
+        StepRecord {
+            p_kpa,
+            theta_deg: 0.0,
+            axial_mm: 0.0,
+            tau_nm: 0.0,
+            max_radius_mm: 20.0,
+            cavity_volume_mm3: v_mm3,
+            min_det_f: 1.0,
+            newton_iterations: 1,
+            contact_distance_mm: None,
+            penetration_mm: None,
+            folded_elements: None,
+            least_jacobian_ratio: None,
+            snapped: false,
+        }
+    }
+
+    #[test]
+    fn the_step_down_from_near_a_pressure_maximum_follows_the_branchs_parabola() {
+        // p(c) = 70 − 1e-6 (c − 20000)²: from c = 19000 (p = 69) down to p = 66, c = 18000
+        let (from, fold) = (rec(69.0, 19_000.0), rec(70.0, 20_000.0));
+        let f = down_step_functional(&from, &fold, 66.0).unwrap();
+        assert!((f - WARM_REACH * 1000.0 / 19_000.0).abs() < 1e-12, "{f}");
+        // no estimate where the records do not bracket it that way
+        assert!(down_step_functional(&from, &fold, 69.5).is_none());
+        assert!(down_step_functional(&fold, &from, 66.0).is_none());
+    }
+
+    #[test]
+    fn a_state_is_moved_on_by_its_delta_when_the_lengths_match() {
+        assert_eq!(extrapolated(&[1.0, 2.0], Some(&[0.5, -1.0])), vec![1.5, 1.0]);
+        assert_eq!(extrapolated(&[1.0, 2.0], Some(&[0.5])), vec![1.0, 2.0]);
+        assert_eq!(extrapolated(&[1.0, 2.0], None), vec![1.0, 2.0]);
+    }
 }

@@ -1680,6 +1680,8 @@ mod tests {
             rom_indicator: None,
             rom_fallback: None,
             warm_start_kpa: None,
+            warm: None,
+            warm_deltas: Vec::new(),
         }
     }
 

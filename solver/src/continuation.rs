@@ -356,6 +356,32 @@ impl<M: PathModel> Node<M> {
     }
 }
 
+/// The stationary point of the cubic λ(c) with values λ0, λ1 and slopes k0, k1 at c0, c1, where
+/// the slopes have opposite signs: the root of its quadratic derivative between c0 and c1 (None
+/// where the data give none there, e.g. non-finite values).
+fn hermite_stationary(c0: f64, l0: f64, k0: f64, c1: f64, l1: f64, k1: f64) -> Option<f64> {
+    let h = c1 - c0;
+    if !(h != 0.0 && h.is_finite() && k0 * k1 < 0.0 && l0.is_finite() && l1.is_finite()) {
+        return None;
+    }
+    // h dλ/dc(t) = (6t² − 6t)(λ0 − λ1) + h k0 (3t² − 4t + 1) + h k1 (3t² − 2t), t = (c − c0)/h
+    let d = l0 - l1;
+    let (qa, qb, qc) = (6.0 * d + 3.0 * h * (k0 + k1), -6.0 * d - h * (4.0 * k0 + 2.0 * k1), h * k0);
+    let scale = qa.abs().max(qb.abs()).max(qc.abs());
+    let t = if qa.abs() <= 1e-12 * scale {
+        -qc / qb
+    } else {
+        let disc = qb * qb - 4.0 * qa * qc;
+        if disc < 0.0 {
+            return None;
+        }
+        // (the numerically stable pair of roots; the one in (0, 1))
+        let r = -0.5 * (qb + qb.signum() * disc.sqrt());
+        [r / qa, if r != 0.0 { qc / r } else { f64::NAN }].into_iter().find(|t| *t > 0.0 && *t < 1.0)?
+    };
+    (t > 0.0 && t < 1.0).then_some(c0 + t * h)
+}
+
 fn norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }
@@ -1154,11 +1180,16 @@ impl<'a, M: PathModel> Follower<'a, M> {
         // bracket (c, k) and the last two iterates
         let (mut lo, mut hi) = ((a.c.unwrap_or(0.0), a.stiffness().unwrap_or(0.0)), (b.c.unwrap_or(0.0), b.stiffness().unwrap_or(0.0)));
         let mut x0 = lo;
+        let mut lam0 = a.lam;
         let mut last = b;
         let mut near: Option<Node<M>> = None; // the latest rising-side state (for the prediction)
         for _ in 0..30 {
             let x1 = (last.c.unwrap_or(0.0), last.stiffness().unwrap_or(0.0));
-            let mut cs = x1.0 - x1.1 * (x1.0 - x0.0) / (x1.1 - x0.1);
+            // the root of dλ/dc of the cubic through both iterates' λ and dλ/dc (the secant
+            // on dλ/dc uses half of that: measured, its first estimate from the two states
+            // bracketing the fold was 1-2 × 1e-4 of c off, just outside the tolerance, and cost
+            // a second iteration), else the secant
+            let mut cs = hermite_stationary(x0.0, lam0, x0.1, x1.0, last.lam, x1.1).unwrap_or_else(|| x1.0 - x1.1 * (x1.0 - x0.0) / (x1.1 - x0.1));
             let (bl, bh) = (lo.0.min(hi.0), lo.0.max(hi.0));
             if !(cs > bl && cs < bh) {
                 cs = 0.5 * (lo.0 + hi.0);
@@ -1191,6 +1222,7 @@ impl<'a, M: PathModel> Follower<'a, M> {
                 hi = (cs, kn);
             }
             x0 = x1;
+            lam0 = last.lam;
             let prev = std::mem::replace(&mut last, n);
             if prev.stiffness().unwrap_or(0.0) * a.stiffness().unwrap_or(0.0) > 0.0 {
                 near = Some(prev);
@@ -2031,6 +2063,20 @@ mod tests {
         let res = follow(&m, &[0.5, 0.0], 0.5, 1.0, &[], &[], &o);
         assert_eq!(res.end, PathEnd::Instability);
         assert!((res.points.last().unwrap().lam - LC).abs() < 1e-3, "{}", res.points.last().unwrap().lam);
+    }
+
+    #[test]
+    fn the_cubic_through_two_states_places_a_fold_exactly_for_a_cubic_branch() {
+        // λ(c) = 1 − (c − 2)² + 0.1 (c − 2)³: maximum at c = 2 (and a minimum at 2 + 20/3)
+        let l = |c: f64| 1.0 - (c - 2.0).powi(2) + 0.1 * (c - 2.0).powi(3);
+        let k = |c: f64| -2.0 * (c - 2.0) + 0.3 * (c - 2.0).powi(2);
+        let c = hermite_stationary(1.5, l(1.5), k(1.5), 2.7, l(2.7), k(2.7)).unwrap();
+        assert!((c - 2.0).abs() < 1e-12, "{c}");
+        // the linear secant on dλ/dc is off by the curvature of dλ/dc
+        let secant = 2.7 - k(2.7) * (2.7 - 1.5) / (k(2.7) - k(1.5));
+        assert!((secant - 2.0).abs() > 1e-2, "{secant}");
+        // slopes of one sign: no estimate
+        assert!(hermite_stationary(0.0, l(0.0), k(0.0), 1.0, l(1.0), k(1.0)).is_none());
     }
 
     #[test]

@@ -587,21 +587,7 @@ mod tests {
     use super::*;
 
     fn rec(p: f64, theta: f64, tau: f64) -> StepRecord {
-        StepRecord {
-            p_kpa: p,
-            theta_deg: theta,
-            axial_mm: 0.0,
-            tau_nm: tau,
-            max_radius_mm: 20.0,
-            cavity_volume_mm3: 1.0,
-            min_det_f: 1.0,
-            newton_iterations: 1,
-            contact_distance_mm: None,
-            penetration_mm: None,
-            folded_elements: None,
-            least_jacobian_ratio: None,
-            snapped: false,
-        }
+        StepRecord::for_test(p, theta, tau, 20.0, 1.0)
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {

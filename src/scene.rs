@@ -1504,17 +1504,17 @@ pub fn energy_density(theta_deg: f64, tau_nm: f64) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn rec(p_kpa: f64, v_mm3: f64) -> StepRecord {
+impl StepRecord {
+    /// A record at pressure `p_kpa` with the given twist, torque, max radius and cavity volume,
+    /// the rest neutral (unit tests of the summaries built from records).
+    pub(crate) fn for_test(p_kpa: f64, theta_deg: f64, tau_nm: f64, max_radius_mm: f64, cavity_volume_mm3: f64) -> StepRecord {
         StepRecord {
             p_kpa,
-            theta_deg: 0.0,
+            theta_deg,
             axial_mm: 0.0,
-            tau_nm: 0.0,
-            max_radius_mm: 20.0,
-            cavity_volume_mm3: v_mm3,
+            tau_nm,
+            max_radius_mm,
+            cavity_volume_mm3,
             min_det_f: 1.0,
             newton_iterations: 1,
             contact_distance_mm: None,
@@ -1523,6 +1523,15 @@ mod tests {
             least_jacobian_ratio: None,
             snapped: false,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(p_kpa: f64, v_mm3: f64) -> StepRecord {
+        StepRecord::for_test(p_kpa, 0.0, 0.0, 20.0, v_mm3)
     }
 
     #[test]

@@ -1645,21 +1645,7 @@ mod tests {
     }
 
     fn rec(p: f64, theta: f64, tau: f64, radius: f64) -> StepRecord {
-        StepRecord {
-            p_kpa: p,
-            theta_deg: theta,
-            axial_mm: 0.0,
-            tau_nm: tau,
-            max_radius_mm: radius,
-            cavity_volume_mm3: 1.0,
-            min_det_f: 1.0,
-            newton_iterations: 1,
-            contact_distance_mm: None,
-            penetration_mm: None,
-            folded_elements: None,
-            least_jacobian_ratio: None,
-            snapped: false,
-        }
+        StepRecord::for_test(p, theta, tau, radius, 1.0)
     }
 
     fn scene(name: &str, steps: Vec<StepRecord>) -> SceneResult {

@@ -29,7 +29,7 @@ use crate::geometry::{ActuatorGeometry, L_TUBE, R0_ENVELOPE, T_WALL};
 use crate::meshing::{build_mesh, ActuatorMesh, MeshError, MeshSpec};
 use std::time::Instant;
 use twistopt_solver::adjoint::Functional;
-use twistopt_solver::continuation::{correct, follow, follow_snapping, ContinuationOptions, Control, LoadPath, PathEnd, PathStats, PointKind, SnapOptions, Stop};
+use twistopt_solver::continuation::{correct, follow, follow_from, follow_snapping, ContinuationOptions, Control, LoadPath, PathEnd, PathStats, PointKind, SnapOptions, Solved, Stop};
 use twistopt_solver::dofmap::{BodyDof, Constraints, Cyclic, DofSpec, RigidBody};
 use twistopt_solver::element::Formulation;
 use twistopt_solver::material::Material;
@@ -865,12 +865,16 @@ fn pressure_path_with(
         };
         // the cavity's load stiffness computed once per step's corrections (exact residual)
         rp.set_cavity_hessian_lag(ROM_CAVITY_HESSIAN_LAG);
-        let (q0, lam0, spent) = match solve_guess(&rp, q0, lam0, path_opts, guess) {
-            Ok(v) => v,
+        let res = match solve_guess(&rp, q0, lam0, path_opts, guess) {
+            Ok(Some(s)) => {
+                let spent = s.iterations;
+                let mut res = follow_from(&rp, s, 1.0, &stations, &stops, path_opts);
+                res.stats.newton_iterations += spent;
+                res
+            }
+            Ok(None) => follow(&rp, q0, lam0, 1.0, &stations, &stops, path_opts),
             Err(its) => return ScenePath::guess_failed(its),
         };
-        let mut res = follow(&rp, &q0, lam0, 1.0, &stations, &stops, path_opts);
-        res.stats.newton_iterations += spent;
         // the indicator at the highest pressure, on this path's reduced model (as
         // `rom_indicator`, without building another)
         let top = res.points.iter().max_by(|a, b| a.lam.total_cmp(&b.lam)).filter(|_| want_indicator && p_end_kpa > 0.0);
@@ -880,29 +884,34 @@ fn pressure_path_with(
         return path;
     }
     let lp = sm.path(from, to, (vacuum && stop).then_some(gap));
-    let (q0, lam0, spent) = match solve_guess(&lp, q0, lam0, path_opts, guess) {
-        Ok(v) => v,
+    let solved = match solve_guess(&lp, q0, lam0, path_opts, guess) {
+        Ok(s) => s,
         Err(its) => return ScenePath::guess_failed(its),
     };
+    let spent = solved.as_ref().map_or(0, |s| s.iterations);
     let mut res = if vacuum && sm.model.contact().is_some() {
         // under vacuum the wall buckles before it touches: the pressure supply makes it snap to
         // the collapsed, contacting state (see `follow_snapping`)
-        follow_snapping(&lp, &q0, lam0, 1.0, &stations, &stops, path_opts, &SnapOptions::default()).0
+        let (q0, lam0) = solved.as_ref().map_or((q0, lam0), |s| (&s.q[..], s.lam));
+        follow_snapping(&lp, q0, lam0, 1.0, &stations, &stops, path_opts, &SnapOptions::default()).0
+    } else if let Some(s) = solved {
+        follow_from(&lp, s, 1.0, &stations, &stops, path_opts)
     } else {
-        follow(&lp, &q0, lam0, 1.0, &stations, &stops, path_opts)
+        follow(&lp, q0, lam0, 1.0, &stations, &stops, path_opts)
     };
     res.stats.newton_iterations += spent;
     scene_path(sm, opts, &res.points, res.end, res.stats, |lam| lp.loads(lam), &stops, p0_kpa, gap, res.last)
 }
 
 /// With `guess` (Some(f)): Newton from the state `q` (a nearby design's, at the same load),
-/// which must converge to a stable state: (state, iterations), or the iterations spent when it
+/// which must converge to a stable state: the solved state (the path's first node, see
+/// [`follow_from`]), or the iterations spent when it
 /// does not. A path that starts under functional control holds the control functional at f ×
 /// its value at q (λ an unknown: well posed also where the load λ lies beyond this design's
 /// maximum, and at a pressure maximum itself).
-fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: Option<f64>) -> Result<(Vec<f64>, f64, usize), usize> {
+fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: Option<f64>) -> Result<Option<Solved<M>>, usize> {
     let Some(f) = guess else {
-        return Ok((q.to_vec(), lam, 0));
+        return Ok(None);
     };
     let c = match o.start_control {
         Control::Functional => match m.eval(q, lam, false, None) {
@@ -918,7 +927,7 @@ fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], la
     // refused, and the scene ramped from zero: ≈ 60 iterations instead of ≈ 10)
     let tight = twistopt_solver::solve::NewtonOptions { rtol: o.newton.rtol.min(1e-10), stall_iterations: 8, stall_ratio: 1.0, ..o.newton.clone() };
     match correct(m, q, lam, c, &tight, o.mixed_tangent, None, false) {
-        Ok(s) if s.stable => Ok((s.q, s.lam, s.iterations)),
+        Ok(s) if s.stable => Ok(Some(s)),
         Ok(s) => Err(s.iterations),
         Err((_, its)) => Err(its),
     }

@@ -662,8 +662,22 @@ pub fn trace_enabled() -> bool {
 /// at each of `stations` (λ values between λ₀ and λ_end) and ending at the first of: λ_end (or
 /// `control_end`), a fold, a loss of stability, a [`Stop`] threshold, or a failure.
 pub fn follow<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions) -> PathResult<M> {
+    follow_impl(m, q0, lam0, None, lam_end, stations, stops, o)
+}
+
+/// [`follow`] from a start the caller has already solved with [`correct`] (a warm start
+/// converged from a nearby design's state): the path takes it, with its tangent and factor, as
+/// its first node instead of evaluating and factoring the same state again. The start's
+/// Newton iterations are the caller's (not in the returned stats).
+pub fn follow_from<M: PathModel>(m: &M, start: Solved<M>, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions) -> PathResult<M> {
+    let (q0, lam0) = (start.q.clone(), start.lam);
+    follow_impl(m, &q0, lam0, Some(start), lam_end, stations, stops, o)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn follow_impl<M: PathModel>(m: &M, q0: &[f64], lam0: f64, solved: Option<Solved<M>>, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions) -> PathResult<M> {
     let mut f = Follower { m, o, stats: PathStats::default(), trace: trace_enabled(), stops, points: Vec::new() };
-    let (end, last, ctl) = f.run(q0, lam0, lam_end, stations);
+    let (end, last, ctl) = f.run(q0, lam0, solved, lam_end, stations);
     // the state handed on (adjoint, limit sensitivity) gets the exact tangent and factor
     let last = last.and_then(|n| {
         if !n.lagged {
@@ -778,17 +792,35 @@ impl<'a, M: PathModel> Follower<'a, M> {
         }
     }
 
-    fn run(&mut self, q0: &[f64], lam0: f64, lam_end: f64, stations: &[f64]) -> (PathEnd, Option<Node<M>>, Control) {
+    fn run(&mut self, q0: &[f64], lam0: f64, solved: Option<Solved<M>>, lam_end: f64, stations: &[f64]) -> (PathEnd, Option<Node<M>>, Control) {
         let o = self.o;
         let span = lam_end - lam0;
-        let dir = if span >= 0.0 { 1.0 } else { -1.0 };
-        let mut ctl = o.start_control;
+        let ctl = o.start_control;
         if !(lam0.is_finite() && lam_end.is_finite()) || o.control_end.is_some_and(|c| !c.is_finite()) {
             return (PathEnd::Failed(FailureCause::Divergence), None, ctl);
         }
-        // the start: accepted as it is when its Newton correction is round-off against the
-        // path's response K⁻¹ r_λ (λ_end − λ₀) (e.g. the unloaded state), else solved
-        let accepted = self.m.eval(q0, lam0, true, None).ok().and_then(|ev| {
+        // the start: solved by the caller, or accepted as it is when its Newton correction is
+        // round-off against the path's response K⁻¹ r_λ (λ_end − λ₀) (e.g. the unloaded
+        // state), else solved
+        let accepted = if solved.is_some() {
+            solved
+        } else {
+            self.accept_start(q0, lam0, span)
+        };
+        let start = match accepted {
+            Some(s) => self.node(s),
+            None => self.newton(q0, lam0, None, None, false),
+        };
+        let cur = match start {
+            Ok(n) => n,
+            Err(e) => return (PathEnd::Failed(cause_of(e)), None, ctl),
+        };
+        self.run_from(cur, lam0, lam_end, stations, ctl)
+    }
+
+    /// `q0` as the path's start if its Newton correction is round-off (see [`Follower::run`]).
+    fn accept_start(&mut self, q0: &[f64], lam0: f64, span: f64) -> Option<Solved<M>> {
+        self.m.eval(q0, lam0, true, None).ok().and_then(|ev| {
             if span == 0.0 {
                 return None;
             }
@@ -801,15 +833,14 @@ impl<'a, M: PathModel> Follower<'a, M> {
             }
             self.stats.factorizations += 1;
             Some(Solved { q: q0.to_vec(), lam: lam0, ev, factor, stable, iterations: 0, residual_norms: Vec::new(), lagged: false })
-        });
-        let start = match accepted {
-            Some(s) => self.node(s),
-            None => self.newton(q0, lam0, None, None, false),
-        };
-        let mut cur = match start {
-            Ok(n) => n,
-            Err(e) => return (PathEnd::Failed(cause_of(e)), None, ctl),
-        };
+        })
+    }
+
+    /// The path on from its start node `cur`.
+    fn run_from(&mut self, mut cur: Node<M>, lam0: f64, lam_end: f64, stations: &[f64], mut ctl: Control) -> (PathEnd, Option<Node<M>>, Control) {
+        let o = self.o;
+        let span = lam_end - lam0;
+        let dir = if span >= 0.0 { 1.0 } else { -1.0 };
         let its0 = self.stats.newton_iterations;
         self.push(&cur, PointKind::Start, its0);
         if span == 0.0 {
@@ -2068,6 +2099,55 @@ mod tests {
         let res = follow(&m, &[0.5, 0.0], 0.5, 1.0, &[], &[], &o);
         assert_eq!(res.end, PathEnd::Instability);
         assert!((res.points.last().unwrap().lam - LC).abs() < 1e-3, "{}", res.points.last().unwrap().lam);
+    }
+
+    /// Counts the tangent evaluations of a model.
+    struct Counted<'a, M: PathModel>(&'a M, std::cell::Cell<usize>);
+
+    impl<M: PathModel> PathModel for Counted<'_, M> {
+        type Matrix = M::Matrix;
+        type Factor = M::Factor;
+        fn dim(&self) -> usize {
+            self.0.dim()
+        }
+        fn eval(&self, q: &[f64], lam: f64, tangent: bool, lin: Option<&[f64]>) -> Result<Eval<M::Matrix>, EvalFailure> {
+            self.1.set(self.1.get() + usize::from(tangent));
+            self.0.eval(q, lam, tangent, lin)
+        }
+        fn factor(&self, k: &M::Matrix, definite: bool) -> Result<M::Factor, SolveError> {
+            self.0.factor(k, definite)
+        }
+        fn solve(&self, f: &M::Factor, b: &[f64]) -> Result<Vec<f64>, SolveError> {
+            self.0.solve(f, b)
+        }
+        fn load_rate(&self, q: &[f64], lam: f64, ev: &Eval<M::Matrix>) -> Result<Vec<f64>, EvalFailure> {
+            self.0.load_rate(q, lam, ev)
+        }
+        fn outputs(&self, q: &[f64], lam: f64, ev: &Eval<M::Matrix>) -> Vec<f64> {
+            self.0.outputs(q, lam, ev)
+        }
+    }
+
+    #[test]
+    fn a_path_from_a_solved_start_is_the_path_from_its_state_without_evaluating_it_again() {
+        // the start solved from a guess off the path (as a warm start from a nearby design is)
+        let m = Counted(&Toy::Fold, std::cell::Cell::new(0));
+        let o = ContinuationOptions { start_control: Control::Functional, initial_functional: Some(0.05), ..ContinuationOptions::default() };
+        let s = correct(&m, &[0.31, 0.01], 0.5, Some(0.3), &o.newton, false, None, false).expect("the guess converges");
+        assert!((s.q[0] - 0.3).abs() < 1e-12 && (s.lam - f_fold(0.3)).abs() < 1e-12, "{:?} {}", s.q, s.lam);
+        let (q0, lam0) = (s.q.clone(), s.lam);
+        m.1.set(0);
+        let from = follow_from(&m, s, 1.2, &[], &[], &o);
+        let tangents_from = m.1.get();
+        m.1.set(0);
+        let plain = follow(&m, &q0, lam0, 1.2, &[], &[], &o);
+        assert_eq!(m.1.get(), tangents_from + 1, "follow_from evaluates its start's tangent again");
+        assert_eq!(from.end, plain.end);
+        assert_eq!(from.points.len(), plain.points.len());
+        for (a, b) in from.points.iter().zip(&plain.points) {
+            assert_eq!((a.lam, &a.q, &a.kind, a.stable), (b.lam, &b.q, &b.kind, b.stable));
+        }
+        assert!(from.points.len() > 2 && from.points[0].kind == PointKind::Start);
     }
 
     #[test]

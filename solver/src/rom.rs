@@ -1120,8 +1120,12 @@ fn mirror_lower(k: &mut Mat<f64>, l: &Mat<f64>) {
     }
 }
 
+/// Sampled points per block of the reduced tangent's Σ Gᵀ (A G) (A G of 64 points is 370 kB at
+/// 82 columns: it stays in cache between its computation and its product).
+const POINT_CHUNK: usize = 64;
+
 thread_local! {
-    /// the quadrature-level evaluation's A G and state-dependent G blocks
+    /// the quadrature-level evaluation's A G (one chunk of points) and state-dependent G blocks
     static POINT_BUFFERS: std::cell::RefCell<(Vec<f64>, Vec<f64>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
@@ -1227,9 +1231,34 @@ fn point_tangent_columns(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9],
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn point_tangent_columns_impl(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9], fv: &[f64; 9], c: &mut [f64], dj: &mut [f64], ag: &mut [f64]) {
-    let g: [&[f64]; 9] = std::array::from_fn(|r| &g[r * m..(r + 1) * m]);
+    // blocks of W columns (one or two SIMD registers per row of G), then the rest one by one
+    const W: usize = 8;
     let (c, dj, ag) = (&mut c[..m], &mut dj[..m], &mut ag[..9 * m]);
-    for col in 0..m {
+    let mut col0 = 0;
+    while col0 + W <= m {
+        let gc: [[f64; W]; 9] = std::array::from_fn(|r| std::array::from_fn(|l| g[r * m + col0 + l]));
+        let (mut s, mut d) = ([0.0; W], [0.0; W]);
+        for r in 0..9 {
+            for l in 0..W {
+                s[l] += pw[r] * gc[r][l];
+                d[l] += fv[r] * gc[r][l];
+            }
+        }
+        c[col0..col0 + W].copy_from_slice(&s);
+        dj[col0..col0 + W].copy_from_slice(&d);
+        for (rr, row) in wa.iter().enumerate() {
+            let mut v = [0.0; W];
+            for (ss, &w) in row.iter().enumerate() {
+                for l in 0..W {
+                    v[l] += w * gc[ss][l];
+                }
+            }
+            ag[rr * m + col0..rr * m + col0 + W].copy_from_slice(&v);
+        }
+        col0 += W;
+    }
+    let g: [&[f64]; 9] = std::array::from_fn(|r| &g[r * m..(r + 1) * m]);
+    for col in col0..m {
         let gc: [f64; 9] = std::array::from_fn(|r| g[r][col]);
         let (mut s, mut d) = (0.0, 0.0);
         for r in 0..9 {
@@ -2129,15 +2158,18 @@ impl<'a> RomPath<'a> {
         }
         let (pcs, h, _) = reduced_pressure(model, self.sample, mx, pb, &moments, energy, min_det)?;
         let want_k = tangent.is_some();
-        // row-major 9 × m blocks: A G of every point, G of the state-dependent ones
+        // row-major 9 × m blocks: A G of a chunk of points (their product with G goes into the
+        // tangent chunk by chunk, while A G is in cache), G of the state-dependent points
         // (reused per thread: fresh multi-megabyte buffers cost page faults at every evaluation;
         // every entry used is overwritten below)
         let (mut ag, mut g_dyn) = POINT_BUFFERS.with(|b| std::mem::take(&mut *b.borrow_mut()));
-        // (grown only: shrinking it at a residual-only evaluation made the next tangent's
-        // resize zero-fill its megabytes again, 5 % of a reduced sweep design)
-        if want_k && ag.len() < 9 * n * m {
-            ag.resize(9 * n * m, 0.0);
+        if want_k && ag.len() < 9 * POINT_CHUNK * m {
+            ag.resize(9 * POINT_CHUNK * m, 0.0);
         }
+        let (kz, mut kl) = match tangent {
+            Some((kz, kl)) => (Some(kz), Some(kl)),
+            None => (None, None),
+        };
         // G of the state-dependent points: the static nodes' part, then the others' sparse rows
         g_dyn.clear();
         g_dyn.extend_from_slice(&ps.g_dyn_static);
@@ -2196,6 +2228,7 @@ impl<'a> RomPath<'a> {
                 *a += c * b;
             }
         };
+        let mut chunk_start = 0;
         for (slot, &i) in ps.order.iter().enumerate() {
             let e = self.elem_items[ps.item[i]];
             let conn = model.mesh.element(e);
@@ -2217,7 +2250,8 @@ impl<'a> RomPath<'a> {
                 // ∂J/∂z = J F⁻ᵀ : G (F⁻ᵀ[i][J] = F⁻¹[J][i])
                 let fv = [fi[0][0], fi[1][0], fi[2][0], fi[0][1], fi[1][1], fi[2][1], fi[0][2], fi[1][2], fi[2][2]].map(|v| v * j);
                 let cs = slot;
-                point_tangent_columns(g, m, &pw, &wa, &fv, &mut c, &mut djs[cs * m..(cs + 1) * m], &mut ag[9 * cs * m..9 * (cs + 1) * m]);
+                let a = slot - chunk_start;
+                point_tangent_columns(g, m, &pw, &wa, &fv, &mut c, &mut djs[cs * m..(cs + 1) * m], &mut ag[9 * a * m..9 * (a + 1) * m]);
                 let pe = pb.block(e);
                 for jp in 0..kp {
                     psiw[cs * kp + jp] = (0..np).map(|rr| pe[rr * kp + jp] * ps.phi[i][rr]).sum::<f64>() * wt;
@@ -2245,15 +2279,20 @@ impl<'a> RomPath<'a> {
                 }
                 add_body_nodal(model, conn, &fnod, w, r_body);
             }
+            // the chunk's Gᵀ (A G), at its end (chunks do not straddle the constant-G entries' end)
+            let end = slot + 1;
+            if let Some(kl) = kl.as_mut().filter(|_| end == n || end == ps.n_const || end - chunk_start == POINT_CHUNK) {
+                let rows = 9 * (end - chunk_start);
+                let gs = if chunk_start < ps.n_const { &ps.g_const[9 * chunk_start * m..9 * end * m] } else { &g_dyn[9 * (chunk_start - ps.n_const) * m..9 * (end - ps.n_const) * m] };
+                let gm = faer::MatRef::from_row_major_slice(&gs[..rows * m], rows, m);
+                let agm = faer::MatRef::from_row_major_slice(&ag[..rows * m], rows, m);
+                lower_product(kl, gm.transpose(), agm, 1.0);
+                chunk_start = end;
+            }
         }
-        if let Some((kz, kl)) = tangent {
+        if let Some(kz) = kz {
             fn rm(v: &[f64], rows: usize, m: usize) -> faer::MatRef<'_, f64> {
                 faer::MatRef::from_row_major_slice(v, rows, m)
-            }
-            let nc = 9 * ps.n_const;
-            lower_product(kl, rm(&ps.g_const, nc, m).transpose(), rm(&ag[..nc * m], nc, m), 1.0);
-            if n > ps.n_const {
-                lower_product(kl, rm(&g_dyn, 9 * n - nc, m).transpose(), rm(&ag[nc * m..9 * n * m], 9 * n - nc, m), 1.0);
             }
             // B = Σ (w Ψ_eᵀ φ) ⊗ ∂J/∂z over the points
             let mut b_red = Mat::<f64>::zeros(kp, m);

@@ -55,6 +55,7 @@ fn merge(key: &str, section: Value) {
 }
 
 fn main() {
+    twistopt::tune_allocator();
     let geom = ActuatorGeometry::new(&Design::paper_example(), RangePolicy::TableI).expect("paper example is valid");
     if wanted("mesh_generation") {
         mesh_generation(&geom);

@@ -1,6 +1,7 @@
 use clap::Parser;
 
 fn main() {
+    twistopt::tune_allocator();
     let cli = match twistopt::cli::Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {

@@ -832,7 +832,7 @@ fn pressure_path_with(
     stations_kpa: &[f64],
     stop: bool,
     want_indicator: bool,
-    guess: Option<f64>,
+    guess: Option<Guess>,
 ) -> ScenePath {
     let vacuum = p_end_kpa < 0.0;
     let gap = sm.contact_gap();
@@ -903,22 +903,47 @@ fn pressure_path_with(
     scene_path(sm, opts, &res.points, res.end, res.stats, |lam| lp.loads(lam), &stops, p0_kpa, gap, res.last)
 }
 
-/// With `guess` (Some(f)): Newton from the state `q` (a nearby design's, at the same load),
-/// which must converge to a stable state: the solved state (the path's first node, see
-/// [`follow_from`]), or the iterations spent when it
-/// does not. A path that starts under functional control holds the control functional at f ×
-/// its value at q (λ an unknown: well posed also where the load λ lies beyond this design's
+/// How a path's start is corrected from a nearby design's state (see [`solve_guess`]).
+#[derive(Clone, Debug)]
+struct Guess {
+    /// under functional control, the control functional is held at this factor × its value at
+    /// the state
+    factor: f64,
+    /// Newton starts from the state + this, where given (a step along the nearby branch towards
+    /// the value held)
+    shift: Option<Vec<f64>>,
+}
+
+impl Guess {
+    fn at(factor: f64) -> Guess {
+        Guess { factor, shift: None }
+    }
+}
+
+/// With `guess`: Newton from the state `q` (a nearby design's, at the same load; from q +
+/// `guess.shift` where given), which must converge to a stable state: the solved state (the
+/// path's first node, see [`follow_from`]), or the iterations spent when it does not. A path
+/// that starts under functional control holds the control functional at `guess.factor` × its
+/// value at q (λ an unknown: well posed also where the load λ lies beyond this design's
 /// maximum, and at a pressure maximum itself).
-fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: Option<f64>) -> Result<Option<Solved<M>>, usize> {
-    let Some(f) = guess else {
+fn solve_guess<M: twistopt_solver::continuation::PathModel>(m: &M, q: &[f64], lam: f64, o: &ContinuationOptions, guess: Option<Guess>) -> Result<Option<Solved<M>>, usize> {
+    let Some(guess) = guess else {
         return Ok(None);
     };
     let c = match o.start_control {
         Control::Functional => match m.eval(q, lam, false, None) {
-            Ok(e) => e.control.map(|c| f * c.0),
+            Ok(e) => e.control.map(|c| guess.factor * c.0),
             Err(_) => return Err(0),
         },
         Control::Load => None,
+    };
+    let shifted: Vec<f64>;
+    let q = match guess.shift.as_deref().filter(|d| d.len() == q.len()) {
+        Some(d) => {
+            shifted = q.iter().zip(d).map(|(a, b)| a + b).collect();
+            &shifted[..]
+        }
+        None => q,
     };
     // (converged as tightly as located events: the path takes the state as its start)
     // (and allowed the iterations of a solve from far: a guess from a nearby design starts with
@@ -1207,8 +1232,8 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
             let flat = |c: &(f64, f64, Vec<f64>)| w.fold || (c.0 > 0.0 && c.1 > 0.0 && (v_e - c.1) / c.1 > WARM_FLAT * (p_e - c.0) / c.0);
             let far = |c: &&(f64, f64, Vec<f64>)| if flat(c) { c.1 <= (1.0 - WARM_GAP) * v_e } else { c.0 <= (1.0 - WARM_GAP) * p_e };
             // the attempts: (guess, the nearby state it extrapolates, whether that is the
-            // nearby branch's pressure maximum, its pressure, path options, volume factor)
-            let mut attempts: Vec<(Vec<f64>, &Vec<f64>, bool, f64, ContinuationOptions, f64)> = Vec::new();
+            // nearby branch's pressure maximum, its pressure, path options, its correction)
+            let mut attempts: Vec<(Vec<f64>, &Vec<f64>, bool, f64, ContinuationOptions, Guess)> = Vec::new();
             // first, where the nearby branch ended at its pressure maximum: its end state moved
             // on along the line (end to end), corrected WARM_FOLD_GAP below its volume, and a
             // first step to as far beyond it: the maximum is bracketed in one short step
@@ -1217,7 +1242,16 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
             let (q_e, d_e) = (&w.points[w.points.len() - 1].2, w.deltas.last().and_then(|d| d.as_deref()));
             if w.fold && p_e < p_end && q_e.len() == q0.len() {
                 let wo = ContinuationOptions { start_control: Control::Functional, initial_functional: Some(2.0 * WARM_FOLD_GAP), ..opts.steps.clone() };
-                attempts.push((extrapolated(q_e, d_e), q_e, true, p_e, wo, 1.0 - WARM_FOLD_GAP));
+                // (the correction down from the maximum starts along the nearby branch's secant
+                // from its maximum to its state nearest that far below: from the maximum itself
+                // the first Newton iteration went to the volume change alone)
+                let target = (1.0 - WARM_FOLD_GAP) * v_e;
+                let below = w.points.iter().filter(|c| c.1 < v_e && c.2.len() == q0.len() && (c.1 - target).abs() <= 0.5 * WARM_FOLD_GAP * v_e).min_by(|a, b| (a.1 - target).abs().total_cmp(&(b.1 - target).abs()));
+                let shift = below.map(|c| {
+                    let s = (target - v_e) / (c.1 - v_e);
+                    c.2.iter().zip(q_e).map(|(a, b)| s * (a - b)).collect()
+                });
+                attempts.push((extrapolated(q_e, d_e), q_e, true, p_e, wo, Guess { factor: 1.0 - WARM_FOLD_GAP, shift }));
             }
             for (cand, delta) in rest.iter().zip(&w.deltas).rev().filter(|(c, _)| far(c)).filter(|(c, _)| c.0 < p_end && c.2.len() == q0.len()).take(WARM_ATTEMPTS) {
                 let (p_w, v_w, state) = cand;
@@ -1226,7 +1260,7 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
                 } else {
                     ContinuationOptions { initial: (WARM_REACH * (p_e - p_w) / (p_end - p_w)).clamp(opts.steps.min, 1.0), ..opts.steps.clone() }
                 };
-                attempts.push((extrapolated(state, delta.as_deref()), state, false, *p_w, wo, 1.0));
+                attempts.push((extrapolated(state, delta.as_deref()), state, false, *p_w, wo, Guess::at(1.0)));
             }
             for (guess, origin, from_end, p_w, wo, factor) in attempts {
                 let path = pressure_path_with(&sm, &wo, opts, &guess, p_w, p_end, stations, true, true, Some(factor));
@@ -1357,7 +1391,7 @@ pub fn add_step_at(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKind
         let near = w.points.iter().zip(&w.deltas).filter(|(c, _)| c.2.len() == r.states[i].len() && c.0 > 0.0 && (c.0 - p_kpa).abs() <= WARM_NEAR * p_kpa.abs()).min_by(|a, b| (a.0 .0 - p_kpa).abs().total_cmp(&(b.0 .0 - p_kpa).abs()));
         if let Some(((_, _, q), delta)) = near {
             let load = ContinuationOptions { start_control: Control::Load, ..opts.steps.clone() };
-            let path = pressure_path_with(&sm, &load, opts, &extrapolated(q, delta.as_deref()), p_kpa, p_kpa, &[], false, false, Some(1.0));
+            let path = pressure_path_with(&sm, &load, opts, &extrapolated(q, delta.as_deref()), p_kpa, p_kpa, &[], false, false, Some(Guess::at(1.0)));
             r.newton_iterations += path.stats.newton_iterations;
             r.path.add(&path.stats);
             if let (None, Some(p)) = (&path.end, path.points.into_iter().last()) {

@@ -1231,9 +1231,20 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
             // load control the first step from there passed this design's maximum and failed)
             let flat = |c: &(f64, f64, Vec<f64>)| w.fold || (c.0 > 0.0 && c.1 > 0.0 && (v_e - c.1) / c.1 > WARM_FLAT * (p_e - c.0) / c.0);
             let far = |c: &&(f64, f64, Vec<f64>)| if flat(c) { c.1 <= (1.0 - WARM_GAP) * v_e } else { c.0 <= (1.0 - WARM_GAP) * p_e };
-            // the attempts: (guess, the nearby state it extrapolates, whether that is the
-            // nearby branch's pressure maximum, its pressure, path options, its correction)
-            let mut attempts: Vec<(Vec<f64>, &Vec<f64>, bool, f64, ContinuationOptions, Guess)> = Vec::new();
+            /// A start tried from the nearby branch.
+            struct Attempt<'w> {
+                /// the state Newton starts from (before `correction`'s shift)
+                guess: Vec<f64>,
+                /// the nearby state it extrapolates
+                origin: &'w Vec<f64>,
+                /// that state is the nearby branch's pressure maximum
+                from_end: bool,
+                /// its pressure (kPa)
+                p_kpa: f64,
+                path: ContinuationOptions,
+                correction: Guess,
+            }
+            let mut attempts: Vec<Attempt> = Vec::new();
             // first, where the nearby branch ended at its pressure maximum: its end state moved
             // on along the line (end to end), corrected WARM_FOLD_GAP below its volume, and a
             // first step to as far beyond it: the maximum is bracketed in one short step
@@ -1251,7 +1262,7 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
                     let s = (target - v_e) / (c.1 - v_e);
                     c.2.iter().zip(q_e).map(|(a, b)| s * (a - b)).collect()
                 });
-                attempts.push((extrapolated(q_e, d_e), q_e, true, p_e, wo, Guess { factor: 1.0 - WARM_FOLD_GAP, shift }));
+                attempts.push(Attempt { guess: extrapolated(q_e, d_e), origin: q_e, from_end: true, p_kpa: p_e, path: wo, correction: Guess { factor: 1.0 - WARM_FOLD_GAP, shift } });
             }
             for (cand, delta) in rest.iter().zip(&w.deltas).rev().filter(|(c, _)| far(c)).filter(|(c, _)| c.0 < p_end && c.2.len() == q0.len()).take(WARM_ATTEMPTS) {
                 let (p_w, v_w, state) = cand;
@@ -1260,10 +1271,10 @@ fn run_pressure_once(geom: &ActuatorGeometry, opts: &SceneOptions, kind: SceneKi
                 } else {
                     ContinuationOptions { initial: (WARM_REACH * (p_e - p_w) / (p_end - p_w)).clamp(opts.steps.min, 1.0), ..opts.steps.clone() }
                 };
-                attempts.push((extrapolated(state, delta.as_deref()), state, false, *p_w, wo, Guess::at(1.0)));
+                attempts.push(Attempt { guess: extrapolated(state, delta.as_deref()), origin: state, from_end: false, p_kpa: *p_w, path: wo, correction: Guess::at(1.0) });
             }
-            for (guess, origin, from_end, p_w, wo, factor) in attempts {
-                let path = pressure_path_with(&sm, &wo, opts, &guess, p_w, p_end, stations, true, true, Some(factor));
+            for Attempt { guess, origin, from_end, p_kpa: p_w, path: wo, correction } in attempts {
+                let path = pressure_path_with(&sm, &wo, opts, &guess, p_w, p_end, stations, true, true, Some(correction));
                 stats.add(&path.stats);
                 if !(path.points.len() > 1 && path.points[0].record.max_radius_mm < opts.ballooning_limit_mm) {
                     continue;

@@ -668,7 +668,8 @@ pub fn follow<M: PathModel>(m: &M, q0: &[f64], lam0: f64, lam_end: f64, stations
 /// [`follow`] from a start the caller has already solved with [`correct`] (a warm start
 /// converged from a nearby design's state): the path takes it, with its tangent and factor, as
 /// its first node instead of evaluating and factoring the same state again. The start's
-/// Newton iterations are the caller's (not in the returned stats).
+/// Newton iterations are the caller's (not in the returned stats). Solve it with `lagged`
+/// false (as the path's own nodes are handed on): its factor is then the state's own.
 pub fn follow_from<M: PathModel>(m: &M, start: Solved<M>, lam_end: f64, stations: &[f64], stops: &[Stop], o: &ContinuationOptions) -> PathResult<M> {
     let (q0, lam0) = (start.q.clone(), start.lam);
     follow_impl(m, &q0, lam0, Some(start), lam_end, stations, stops, o)

@@ -28,8 +28,9 @@ pub mod sweep;
 /// a no-op). A reduced-model design allocates and frees buffers of a few MB at every path
 /// setup and evaluation (the design's rotated basis, the sampled points' ∂F/∂z, the cavity's
 /// rows): with glibc's defaults each comes from a fresh mmap or a re-grown heap, and its pages
-/// are faulted in and zeroed again every time. Measured on 151 warm-started sweep designs: a
-/// path setup 21 → 10 ms, the whole run 35 → 29 CPU s. Called first by the `twistopt` binary
+/// are faulted in and zeroed again every time. Measured: a reduced path's setup 21 → 11 ms
+/// (bench `rom_evaluation`'s design, fastest of 100); whole sweep runs moved within the machine's
+/// noise. Called first by the `twistopt` binary
 /// and the benchmarks; the thresholds are 32 MB (glibc's largest mmap threshold) and 64 MB.
 pub fn tune_allocator() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]

@@ -1231,49 +1231,40 @@ fn point_tangent_columns(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9],
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn point_tangent_columns_impl(g: &[f64], m: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9], fv: &[f64; 9], c: &mut [f64], dj: &mut [f64], ag: &mut [f64]) {
-    // blocks of W columns (one or two SIMD registers per row of G), then the rest one by one
-    const W: usize = 8;
+    // blocks of 8 columns (one or two SIMD registers per row of G), then the rest one by one
     let (c, dj, ag) = (&mut c[..m], &mut dj[..m], &mut ag[..9 * m]);
     let mut col0 = 0;
-    while col0 + W <= m {
-        let gc: [[f64; W]; 9] = std::array::from_fn(|r| std::array::from_fn(|l| g[r * m + col0 + l]));
-        let (mut s, mut d) = ([0.0; W], [0.0; W]);
-        for r in 0..9 {
-            for l in 0..W {
-                s[l] += pw[r] * gc[r][l];
-                d[l] += fv[r] * gc[r][l];
-            }
-        }
-        c[col0..col0 + W].copy_from_slice(&s);
-        dj[col0..col0 + W].copy_from_slice(&d);
-        for (rr, row) in wa.iter().enumerate() {
-            let mut v = [0.0; W];
-            for (ss, &w) in row.iter().enumerate() {
-                for l in 0..W {
-                    v[l] += w * gc[ss][l];
-                }
-            }
-            ag[rr * m + col0..rr * m + col0 + W].copy_from_slice(&v);
-        }
-        col0 += W;
+    while col0 + 8 <= m {
+        point_tangent_block::<8>(g, m, col0, pw, wa, fv, c, dj, ag);
+        col0 += 8;
     }
-    let g: [&[f64]; 9] = std::array::from_fn(|r| &g[r * m..(r + 1) * m]);
     for col in col0..m {
-        let gc: [f64; 9] = std::array::from_fn(|r| g[r][col]);
-        let (mut s, mut d) = (0.0, 0.0);
-        for r in 0..9 {
-            s += pw[r] * gc[r];
-            d += fv[r] * gc[r];
+        point_tangent_block::<1>(g, m, col, pw, wa, fv, c, dj, ag);
+    }
+}
+
+/// [`point_tangent_columns_impl`] on the W columns from `col0`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn point_tangent_block<const W: usize>(g: &[f64], m: usize, col0: usize, pw: &[f64; 9], wa: &[[f64; 9]; 9], fv: &[f64; 9], c: &mut [f64], dj: &mut [f64], ag: &mut [f64]) {
+    let gc: [[f64; W]; 9] = std::array::from_fn(|r| std::array::from_fn(|l| g[r * m + col0 + l]));
+    let (mut s, mut d) = ([0.0; W], [0.0; W]);
+    for r in 0..9 {
+        for l in 0..W {
+            s[l] += pw[r] * gc[r][l];
+            d[l] += fv[r] * gc[r][l];
         }
-        c[col] = s;
-        dj[col] = d;
-        for (rr, row) in wa.iter().enumerate() {
-            let mut v = 0.0;
-            for ss in 0..9 {
-                v += row[ss] * gc[ss];
+    }
+    c[col0..col0 + W].copy_from_slice(&s);
+    dj[col0..col0 + W].copy_from_slice(&d);
+    for (rr, row) in wa.iter().enumerate() {
+        let mut v = [0.0; W];
+        for (ss, &w) in row.iter().enumerate() {
+            for l in 0..W {
+                v[l] += w * gc[ss][l];
             }
-            ag[rr * m + col] = v;
         }
+        ag[rr * m + col0..rr * m + col0 + W].copy_from_slice(&v);
     }
 }
 
